@@ -1,0 +1,1 @@
+//! The task layer: tokio, serial ports, sockets, files and clocks.

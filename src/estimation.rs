@@ -1,0 +1,170 @@
+//! The shape every odometer solve hands to integrity: a linearised weighted least-squares
+//! problem `y = H x + e`, `e ~ N(0, R)`, in three unknowns, with each row tagged by the plane it
+//! came from. Displacement (eq 2) and rotation (eqs 6-7) both produce one of these.
+
+use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
+use std::fmt;
+
+/// Relative eigenvalue of the information matrix below which a direction counts as unobserved.
+/// Planes within about 0.5 deg of parallel leave their common normal's complement this weak.
+pub const OBSERVABILITY_TOLERANCE: f64 = 1e-6;
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct LinearSystem {
+    /// Geometry matrix, rows x 3.
+    pub h: DMatrix<f64>,
+    /// Measurements (or, for an iterated solve, the residual at the linearisation point).
+    pub y: DVector<f64>,
+    /// Measurement covariance, rows x rows (block diagonal by plane).
+    pub r: DMatrix<f64>,
+    /// For each row, the index of the matched plane it came from.
+    pub plane_of_row: Vec<usize>,
+}
+
+/// A least-squares estimate with everything integrity and the filter need to judge it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Solution {
+    pub x: Vector3<f64>,
+    pub covariance: Matrix3<f64>,
+    /// `y - H x`, one per row of `system`.
+    pub residuals: DVector<f64>,
+    pub system: LinearSystem,
+    pub dilution: Dilution,
+}
+
+/// DOP-like figures: square roots of the diagonal of `(H^T H)^-1` and its condition number.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dilution {
+    pub per_axis: Vector3<f64>,
+    pub condition: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub enum SolveError {
+    /// The planes do not pin down every axis; `unobservable` spans the directions left free.
+    UnderDetermined { unobservable: Vec<Vector3<f64>> },
+    /// The measurement covariance is not positive definite.
+    BadCovariance,
+}
+
+impl fmt::Display for SolveError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::UnderDetermined { unobservable } => {
+                write!(f, "under-determined: no plane constrains direction(s)")?;
+                for d in unobservable {
+                    write!(f, " [{:.3} {:.3} {:.3}]", d.x, d.y, d.z)?;
+                }
+                Ok(())
+            }
+            Self::BadCovariance => write!(f, "measurement covariance is not positive definite"),
+        }
+    }
+}
+
+impl std::error::Error for SolveError {}
+
+impl LinearSystem {
+    pub fn rows(&self) -> usize {
+        self.y.len()
+    }
+
+    /// Weighted least squares, refusing rather than inverting an ill-conditioned geometry.
+    pub fn solve(self) -> Result<Solution, SolveError> {
+        let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
+        let r_inv_h = r_chol.solve(&self.h);
+        let r_inv_y = r_chol.solve(&self.y);
+        let information: Matrix3<f64> = (self.h.transpose() * &r_inv_h)
+            .fixed_view::<3, 3>(0, 0)
+            .into();
+        check_observability(&information)?;
+        let covariance = information
+            .try_inverse()
+            .ok_or_else(|| SolveError::UnderDetermined {
+                unobservable: weakest_directions(&information),
+            })?;
+        let hty: Vector3<f64> = (self.h.transpose() * r_inv_y).fixed_rows::<3>(0).into();
+        let x = covariance * hty;
+        let residuals = &self.y - &self.h * x;
+        let dilution = dilution(&self.h);
+        Ok(Solution {
+            x,
+            covariance,
+            residuals,
+            system: self,
+            dilution,
+        })
+    }
+}
+
+fn check_observability(information: &Matrix3<f64>) -> Result<(), SolveError> {
+    let unobservable = weakest_directions(information);
+    if unobservable.is_empty() {
+        Ok(())
+    } else {
+        Err(SolveError::UnderDetermined { unobservable })
+    }
+}
+
+/// Eigenvectors of the information matrix whose eigenvalue is negligible against the largest.
+pub fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
+    let eigen = SymmetricEigen::new(*information);
+    let largest = eigen.eigenvalues.amax();
+    (0..3)
+        .filter(|&i| !(eigen.eigenvalues[i] > OBSERVABILITY_TOLERANCE * largest))
+        .map(|i| eigen.eigenvectors.column(i).into_owned())
+        .collect()
+}
+
+fn dilution(h: &DMatrix<f64>) -> Dilution {
+    let gram: Matrix3<f64> = (h.transpose() * h).fixed_view::<3, 3>(0, 0).into();
+    let eigen = SymmetricEigen::new(gram);
+    let condition = eigen.eigenvalues.max() / eigen.eigenvalues.min().max(f64::MIN_POSITIVE);
+    let per_axis = gram
+        .try_inverse()
+        .map(|inv| inv.diagonal().map(f64::sqrt))
+        .unwrap_or_else(|| Vector3::repeat(f64::INFINITY));
+    Dilution {
+        per_axis,
+        condition,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn system(normals: &[[f64; 3]], y: &[f64]) -> LinearSystem {
+        let m = normals.len();
+        LinearSystem {
+            h: DMatrix::from_fn(m, 3, |i, j| normals[i][j]),
+            y: DVector::from_column_slice(y),
+            r: DMatrix::identity(m, m) * 1e-4,
+            plane_of_row: (0..m).collect(),
+        }
+    }
+
+    #[test]
+    fn three_orthogonal_planes_give_the_exact_displacement() {
+        let truth = Vector3::new(0.4, 0.6, -0.1);
+        let normals = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let y: Vec<f64> = normals
+            .iter()
+            .map(|n| Vector3::from(*n).dot(&truth))
+            .collect();
+        let solution = system(&normals, &y).solve().unwrap();
+        assert!((solution.x - truth).norm() < 1e-12);
+        assert!((solution.covariance - Matrix3::identity() * 1e-4).norm() < 1e-15);
+    }
+
+    #[test]
+    fn two_walls_leave_the_vertical_unobservable() {
+        let normals = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.7071, 0.7071, 0.0]];
+        let err = system(&normals, &[0.0; 3]).solve().unwrap_err();
+        let SolveError::UnderDetermined { unobservable } = err else {
+            panic!("{err}")
+        };
+        assert_eq!(unobservable.len(), 1);
+        assert!((unobservable[0].z.abs() - 1.0).abs() < 1e-9);
+    }
+}

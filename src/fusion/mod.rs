@@ -1,0 +1,1 @@
+//! Pure wiring of IMU samples and scans, in time order, through the core and the filter.

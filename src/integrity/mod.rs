@@ -1,0 +1,1 @@
+//! Parity-space fault detection and exclusion with protection levels (sections 3.3 to 3.5).

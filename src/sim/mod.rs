@@ -1,0 +1,1 @@
+//! Ray-cast scanners, IMU and moving scene with ground truth.
