@@ -5,6 +5,7 @@
 //! and synchronous; `fusion` wires them without I/O; only `daemon` touches tokio, ports and files.
 
 pub mod daemon;
+pub mod estimate;
 pub mod estimation;
 pub mod filter;
 pub mod fusion;

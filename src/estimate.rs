@@ -1,0 +1,61 @@
+//! What the fusion hands to the outputs (MAVLink, files): the filter's state at one instant and
+//! the integrity verdict of the latest odometry epoch.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use serde::Serialize;
+
+/// Integrity verdict of one odometry epoch (DESIGN.md 4.8).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+#[serde(tag = "status", rename_all = "snake_case")]
+pub enum IntegrityStatus {
+    /// Every test passed with all matched planes.
+    Ok,
+    /// The listed planes (ids of the current epoch) were excluded; the rest passed.
+    Excluded { planes: Vec<usize> },
+    /// A fault was detected but the redundancy did not allow isolating it: not fused.
+    DetectedNotIsolable,
+    /// Fewer than three non-parallel planes: the solve was not attempted or not fused.
+    UnderDetermined,
+}
+
+impl IntegrityStatus {
+    /// Whether the epoch's odometry may be fused.
+    pub fn usable(&self) -> bool {
+        matches!(self, Self::Ok | Self::Excluded { .. })
+    }
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Host monotonic time, seconds.
+    pub t: f64,
+    /// Position NED (origin at start), metres.
+    pub position: Vector3<f64>,
+    /// Velocity NED, m/s.
+    pub velocity: Vector3<f64>,
+    /// Attitude, body FRD to NED.
+    pub attitude: UnitQuaternion<f64>,
+    /// Body angular rate (FRD), bias-corrected, rad/s.
+    pub angular_rate: Vector3<f64>,
+    pub position_covariance: Matrix3<f64>,
+    pub velocity_covariance: Matrix3<f64>,
+    /// Attitude error covariance in the NED tangent space (roll, pitch, yaw), rad^2.
+    pub attitude_covariance: Matrix3<f64>,
+    pub gyro_bias: Vector3<f64>,
+    pub accel_bias: Vector3<f64>,
+    /// Incremented whenever the filter state jumps (reset after NaN, re-initialisation).
+    pub reset_counter: u8,
+    /// Verdict of the most recent odometry epoch, if any has run.
+    pub integrity: Option<IntegrityStatus>,
+    /// Seconds since the last odometry epoch that was fused (infinite before the first).
+    pub since_last_fused: f64,
+    /// A sensor is stale or the IMU had a gap: the estimate is dead-reckoning or worse.
+    pub degraded: bool,
+}
+
+impl Estimate {
+    /// Velocity in the body frame, which is what PX4 and ArduPilot fuse.
+    pub fn body_velocity(&self) -> Vector3<f64> {
+        self.attitude.inverse_transform_vector(&self.velocity)
+    }
+}
