@@ -538,9 +538,10 @@ impl Device {
         }
         match m {
             mid::WAKE_UP => {
-                self.transmit.push_back(Command::WakeUpAck.to_frame());
                 self.events.push_back(Event::WakeUp);
                 self.restart(now);
+                // The acknowledgement goes first: it must reach the device within 500 ms.
+                self.transmit.push_front(Command::WakeUpAck.to_frame());
             }
             mid::ERROR => {
                 let code = ErrorCode(payload.first().copied().unwrap_or(0));
