@@ -1,4 +1,6 @@
 //! A host `Device` wired to an `Emulator`, with a manual clock.
+// Each test binary that includes this module uses only part of it.
+#![allow(dead_code)]
 
 use std::time::Duration;
 
