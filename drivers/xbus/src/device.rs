@@ -625,3 +625,50 @@ impl Device {
         self.send(Command::GoToMeasurement, now);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sample_time_wrap_follows_the_model_family() {
+        for (code, wrap) in [
+            ("MTi-G-710-2A5G4", ONE_DAY_TICKS),
+            ("MTi-G-700-2A5G4", ONE_DAY_TICKS),
+            ("MTi-300-2A8G4", ONE_DAY_TICKS),
+            ("MTi-30-2A5G4", ONE_DAY_TICKS),
+            ("MTi-10", ONE_DAY_TICKS),
+            ("MTi-630", U32_TICKS),
+            ("MTi-680G", U32_TICKS),
+            ("MTi-3-8A7G6", U32_TICKS),
+            ("MTi-1", U32_TICKS),
+            ("", U32_TICKS),
+        ] {
+            assert_eq!(
+                ProductCode::from_bytes(code.as_bytes()).sample_time_wrap(),
+                wrap,
+                "{code}"
+            );
+        }
+    }
+
+    #[test]
+    fn product_code_drops_padding() {
+        let code = ProductCode::from_bytes(b"MTi-630     \0\0\0\0");
+        assert_eq!(code.as_str(), "MTi-630");
+    }
+
+    #[test]
+    fn sample_clock_unwraps_forward_and_keeps_small_backward_steps() {
+        let mut clock = SampleClock {
+            modulus: 1000,
+            last_raw: None,
+            total: 0,
+        };
+        let got: Vec<u64> = [900, 950, 20, 10, 400]
+            .iter()
+            .map(|&r| clock.unwrap(r))
+            .collect();
+        assert_eq!(got, [900, 950, 1020, 1010, 1400]);
+    }
+}
