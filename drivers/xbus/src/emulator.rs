@@ -111,6 +111,37 @@ impl Sample {
     }
 }
 
+impl Sample {
+    /// Increments plus the mean rates they imply over `interval_s` (> 0), for recordings
+    /// that hold strapdown increments.
+    pub fn from_increments(
+        sample_time_fine: u32,
+        delta_v: [f64; 3],
+        delta_q: [f64; 4],
+        interval_s: f64,
+    ) -> Self {
+        let [w, x, y, z] = delta_q;
+        let sin_half = (x * x + y * y + z * z).sqrt();
+        let angle = 2.0 * sin_half.atan2(w);
+        let axis_scale = if sin_half > 0.0 {
+            angle / sin_half
+        } else {
+            2.0
+        };
+        let rate_of_turn = [x, y, z].map(|c| c * axis_scale / interval_s);
+        Self {
+            delta_v,
+            delta_q,
+            ..Self::from_rates(
+                sample_time_fine,
+                delta_v.map(|v| v / interval_s),
+                rate_of_turn,
+                interval_s,
+            )
+        }
+    }
+}
+
 pub struct Emulator {
     options: EmulatorOptions,
     framer: Framer,

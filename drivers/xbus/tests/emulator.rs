@@ -113,3 +113,21 @@ fn increments_follow_the_rates() {
         assert!((g - w).abs() < 1e-15);
     }
 }
+
+#[test]
+fn increments_and_rates_are_consistent_both_ways() {
+    let forward = Sample::from_rates(7, [0.2, -0.4, -9.8], [0.3, -0.1, 1.2], 0.01);
+    let back = Sample::from_increments(7, forward.delta_v, forward.delta_q, 0.01);
+    assert_eq!(
+        (back.delta_v, back.delta_q),
+        (forward.delta_v, forward.delta_q)
+    );
+    for (g, w) in back
+        .acceleration
+        .iter()
+        .zip(forward.acceleration)
+        .chain(back.rate_of_turn.iter().zip(forward.rate_of_turn))
+    {
+        assert!((g - w).abs() < 1e-12, "{g} vs {w}");
+    }
+}
