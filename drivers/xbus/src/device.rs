@@ -412,6 +412,7 @@ impl Device {
         self.transmit.pop_front()
     }
 
+    /// Drain after every `handle_input` and `handle_timeout`: undrained events accumulate.
     pub fn poll_event(&mut self) -> Option<Event> {
         self.events.pop_front()
     }
