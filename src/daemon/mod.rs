@@ -6,5 +6,7 @@
 pub mod config;
 pub mod link;
 pub mod mavlink_out;
+pub mod mavlink_task;
 pub mod outputs;
+pub mod recorder_thread;
 pub mod recording;
