@@ -388,13 +388,18 @@ impl std::error::Error for ConfigErrors {}
 
 impl Config {
     pub fn load(path: &Path) -> Result<Self, ConfigErrors> {
+        Self::load_with_text(path).map(|(config, _)| config)
+    }
+
+    /// The configuration and the file's text, which the recording keeps as metadata.
+    pub fn load_with_text(path: &Path) -> Result<(Self, String), ConfigErrors> {
         let text = std::fs::read_to_string(path).map_err(|source| {
             ConfigErrors(vec![ConfigError::Read {
                 path: path.to_path_buf(),
                 source,
             }])
         })?;
-        Self::parse(&text, path)
+        Self::parse(&text, path).map(|config| (config, text))
     }
 
     /// `path` names the file in errors.
@@ -774,6 +779,17 @@ path = "/var/lib/ladar-odometer"
         let without_imu = format!("{}{}", &VALID[..start], &VALID[end..]);
         let errors = errors(&without_imu);
         assert!(errors[0].contains("imu"), "{errors:?}");
+    }
+
+    #[test]
+    fn loading_from_a_file_keeps_its_text_for_the_recording() {
+        let file = std::env::temp_dir().join(format!("ladar-config-{}.toml", std::process::id()));
+        let text = VALID.replace("[mavlink.signing]", "[mavlink.signing]\n# comment kept");
+        std::fs::write(&file, &text).unwrap();
+        let (config, kept) = Config::load_with_text(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        assert_eq!(kept, text);
+        assert_eq!(config.scanners[0].name, "front");
     }
 
     #[test]

@@ -199,9 +199,9 @@ impl Link {
         })
     }
 
-    /// Sends one message and returns the frame exactly as written (for `mavlink.tlog`). On
-    /// `udpin` nothing is sent until the autopilot has spoken first; the frame is still returned.
-    pub async fn send(&self, message: &MavMessage) -> Result<Vec<u8>, LinkError> {
+    /// Sends one message and returns the frame exactly as written (for `mavlink.tlog`), or
+    /// `None` when there is nobody to send to yet (`udpin` before the autopilot has spoken).
+    pub async fn send(&self, message: &MavMessage) -> Result<Option<Vec<u8>>, LinkError> {
         let mut sequence = self.sequence.lock().await;
         let header = MavHeader {
             sequence: *sequence,
@@ -216,12 +216,16 @@ impl Link {
             None => raw.serialize_message(header, message),
         }
         let frame = raw.raw_bytes().to_vec();
-        self.connection
+        let written = self
+            .connection
             .send_raw(&MAVLinkMessageRaw::V2(raw))
             .await
             .map_err(|e| LinkError::Send(e.to_string()))?;
+        if written == 0 {
+            return Ok(None);
+        }
         *sequence = sequence.wrapping_add(1);
-        Ok(frame)
+        Ok(Some(frame))
     }
 
     pub async fn recv(&self) -> Result<(MavHeader, MavMessage), LinkError> {
@@ -245,8 +249,12 @@ impl Link {
                 received = self.recv() => received?,
             };
             if let MavMessage::TIMESYNC(request) = &message {
-                if let Some(reply) = timesync_reply(request, &header, now_ns()) {
-                    on_sent(&self.send(&reply).await?);
+                let reply = timesync_reply(request, &header, now_ns());
+                if let Some(frame) = match reply {
+                    Some(reply) => self.send(&reply).await?,
+                    None => None,
+                } {
+                    on_sent(&frame);
                 }
             }
         }
@@ -361,7 +369,7 @@ mod tests {
 
         let mut buffer = [0u8; 300];
         for expected_sequence in 0..3u8 {
-            let frame = link.send(&heartbeat()).await.unwrap();
+            let frame = link.send(&heartbeat()).await.unwrap().unwrap();
             let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
                 .await
                 .unwrap()
@@ -425,6 +433,55 @@ mod tests {
         assert_eq!(sent.lock().unwrap().as_slice(), &[buffer[..n].to_vec()]);
     }
 
+    #[tokio::test]
+    async fn udpin_sends_nothing_until_the_autopilot_speaks() {
+        let port = std::net::UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let address = LinkAddress::UdpIn {
+            host: "127.0.0.1".into(),
+            port,
+        };
+        let link = Link::connect(&address, IDENTITY, None).await.unwrap();
+        assert_eq!(link.send(&heartbeat()).await.unwrap(), None);
+
+        let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let mut hello = Vec::new();
+        let autopilot_header = MavHeader {
+            system_id: 1,
+            component_id: 1,
+            sequence: 0,
+        };
+        mavlink::write_v2_msg(&mut hello, autopilot_header, &heartbeat()).unwrap();
+        autopilot
+            .send_to(&hello, ("127.0.0.1", port))
+            .await
+            .unwrap();
+        let (header, _) = timeout(Duration::from_secs(5), link.recv())
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(header.component_id, 1);
+        let frame = link
+            .send(&heartbeat())
+            .await
+            .unwrap()
+            .expect("a peer is known now");
+        let mut buffer = [0u8; 64];
+        let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(&buffer[..n], &frame[..]);
+        assert_eq!(
+            decode(&buffer[..n]).0.sequence,
+            0,
+            "the unsent frame used no sequence number"
+        );
+    }
+
     async fn signed_heartbeat_accepted_by(receiver_key: [u8; 32]) -> bool {
         let port = std::net::UdpSocket::bind("127.0.0.1:0")
             .unwrap()
@@ -448,7 +505,7 @@ mod tests {
         let link = Link::connect(&address, IDENTITY, Some(signing))
             .await
             .unwrap();
-        let frame = link.send(&heartbeat()).await.unwrap();
+        let frame = link.send(&heartbeat()).await.unwrap().unwrap();
         assert_eq!(frame[2] & 0x01, 0x01, "the signed flag is set");
         assert_eq!(
             frame.len(),

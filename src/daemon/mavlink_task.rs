@@ -41,8 +41,9 @@ pub async fn run(
             _ = heartbeat_poll.tick() => stream.heartbeat_due(now()),
         };
         if let Some(message) = message {
-            let frame = link.send(&message).await?;
-            on_sent(now(), &frame);
+            if let Some(frame) = link.send(&message).await? {
+                on_sent(now(), &frame);
+            }
         }
     }
 }
