@@ -614,6 +614,34 @@ mod tests {
         assert!(position_delta(&previous, &current, 50.0).is_none());
     }
 
+    proptest::proptest! {
+        #[test]
+        fn delta_reconstructs_the_current_pose(
+            rpy0 in proptest::array::uniform3(-1.5f64..1.5),
+            turn in proptest::array::uniform3(-0.5f64..0.5),
+            step in proptest::array::uniform3(-2.0f64..2.0),
+        ) {
+            let mut previous = estimate();
+            previous.attitude = UnitQuaternion::from_euler_angles(rpy0[0], rpy0[1], rpy0[2]);
+            let mut current = previous.clone();
+            current.t += 0.05;
+            current.attitude =
+                previous.attitude * UnitQuaternion::from_scaled_axis(Vector3::from(turn));
+            current.position += Vector3::from(step);
+            let Some(MavMessage::VISION_POSITION_DELTA(m)) =
+                position_delta(&previous, &current, 100.0)
+            else {
+                panic!("expected a delta");
+            };
+            let angle = Vector3::from(m.angle_delta.map(f64::from));
+            let rebuilt = previous.attitude * UnitQuaternion::from_scaled_axis(angle);
+            proptest::prop_assert!(rebuilt.angle_to(&current.attitude) < 1e-5);
+            let displacement =
+                current.attitude * Vector3::from(m.position_delta.map(f64::from));
+            proptest::prop_assert!((displacement - Vector3::from(step)).norm() < 1e-5);
+        }
+    }
+
     #[test]
     fn rate_limiter_keeps_phase_and_does_not_burst() {
         let mut limiter = RateLimiter::new(10.0);

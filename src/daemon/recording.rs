@@ -255,10 +255,10 @@ impl<W: Write + Seek> Recorder<W> {
         Ok(())
     }
 
-    /// Writes the summary and footer.
-    pub fn finish(mut self) -> Result<(), RecordingError> {
+    /// Writes the summary and footer and hands back the stream (to `sync_all` a file, say).
+    pub fn finish(mut self) -> Result<W, RecordingError> {
         self.writer.finish()?;
-        Ok(())
+        Ok(self.writer.into_inner())
     }
 }
 
@@ -462,6 +462,10 @@ impl<'p> McapParser<'p> {
             };
             match self.record(record)? {
                 Step::Continue => {}
+                // Chunks never nest; refusing it also bounds the recursion on hostile input.
+                Step::Chunk(_) if !top_level => {
+                    return Ok(Err(damage(offset, "a chunk inside a chunk".into())))
+                }
                 Step::Chunk(inner) => {
                     if let Err(inner_damage) = self.records(&inner, 0, false)? {
                         return Ok(Err(damage(
@@ -491,7 +495,7 @@ impl<'p> McapParser<'p> {
             Record::Channel(channel) => {
                 self.channel(channel.id, channel.topic, channel.message_encoding)?
             }
-            Record::Message { header, data } => self.message(header, &data)?,
+            Record::Message { header, data } => return self.message(header, &data),
             Record::Metadata(metadata) if metadata.name == CONFIG_METADATA_NAME => {
                 self.config_toml = metadata.metadata.get(CONFIG_METADATA_KEY).cloned();
             }
@@ -536,7 +540,7 @@ impl<'p> McapParser<'p> {
         Ok(())
     }
 
-    fn message(&mut self, header: MessageHeader, data: &[u8]) -> Result<(), RecordingError> {
+    fn message(&mut self, header: MessageHeader, data: &[u8]) -> Result<Step, RecordingError> {
         match self.channels.get(&header.channel_id) {
             Some(ChannelKind::Device {
                 sensor,
@@ -560,11 +564,14 @@ impl<'p> McapParser<'p> {
                     })?;
                 self.truth.push((header.log_time, sample));
             }
-            // A message before its channel is damage the MCAP parser reports elsewhere; a
-            // message on a channel of no interest cannot occur since every channel is known.
-            None => {}
+            None => {
+                return Ok(Step::Damaged(format!(
+                    "a message on channel {} that was never declared",
+                    header.channel_id
+                )))
+            }
         }
-        Ok(())
+        Ok(Step::Continue)
     }
 }
 
@@ -835,6 +842,34 @@ mod tests {
         }
     }
 
+    /// An MCAP chunk record (opcode 0x06, uncompressed) around `records`.
+    fn chunk_record(records: &[u8]) -> Vec<u8> {
+        let mut body = Vec::new();
+        body.extend_from_slice(&[0; 24]); // start time, end time, uncompressed size
+        body.extend_from_slice(&[0; 4]); // crc: not computed
+        body.extend_from_slice(&[0; 4]); // compression "": none
+        body.extend_from_slice(&(records.len() as u64).to_le_bytes());
+        body.extend_from_slice(records);
+        let mut record = vec![0x06];
+        record.extend_from_slice(&(body.len() as u64).to_le_bytes());
+        record.extend_from_slice(&body);
+        record
+    }
+
+    #[test]
+    fn deeply_nested_chunks_are_refused_without_exhausting_the_stack() {
+        let mut nested = Vec::new();
+        for _ in 0..1_000 {
+            nested = chunk_record(&nested);
+        }
+        let mut bytes = mcap::MAGIC.to_vec();
+        bytes.extend_from_slice(&nested);
+        let err = Recording::parse(&bytes, &path(), ReadMode::Strict)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("a chunk inside a chunk"), "{err}");
+    }
+
     #[test]
     fn an_unknown_encoding_is_a_recording_from_an_unknown_sensor() {
         let mut out = Cursor::new(Vec::new());
@@ -940,6 +975,52 @@ mod tests {
             let recording = Recording::parse(&xbus, &path(), ReadMode::Strict).unwrap();
             assert_eq!(recording.format, Format::RawDump(Encoding::Xbus));
             assert_eq!(recording.messages.concat_data(), xbus);
+        }
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_bytes_parse_without_panicking(
+            tail in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..400),
+            as_mcap in proptest::prelude::any::<bool>(),
+        ) {
+            let mut bytes = if as_mcap { mcap::MAGIC.to_vec() } else { Vec::new() };
+            bytes.extend_from_slice(&tail);
+            for mode in [ReadMode::Strict, ReadMode::Tolerant] {
+                if let Err(e) = Recording::parse(&bytes, &path(), mode) {
+                    proptest::prop_assert!(!e.to_string().contains('\n'));
+                }
+            }
+        }
+
+        #[test]
+        fn any_traffic_round_trips_byte_for_byte(
+            chunks in proptest::collection::vec(
+                (0..3usize, proptest::prelude::any::<bool>(),
+                 proptest::collection::vec(proptest::prelude::any::<u8>(), 0..64)),
+                0..40),
+            flush_after in 0..40usize,
+        ) {
+            let names = ["front", "pitched", "imu"];
+            let mut recorder = Recorder::new(Cursor::new(Vec::new()), CONFIG).unwrap();
+            for (i, (sensor, tx, data)) in chunks.iter().enumerate() {
+                let direction = if *tx { Direction::Tx } else { Direction::Rx };
+                recorder.bytes(names[*sensor], Encoding::Xbus, direction, i as u64, data).unwrap();
+                if i == flush_after {
+                    recorder.flush().unwrap();
+                }
+            }
+            let bytes = recorder.finish().unwrap().into_inner();
+            let recording = Recording::parse(&bytes, &path(), ReadMode::Strict).unwrap();
+            let back: Vec<(usize, bool, Vec<u8>)> = recording
+                .messages
+                .iter()
+                .map(|m| {
+                    let sensor = names.iter().position(|n| *n == m.sensor).unwrap();
+                    (sensor, m.direction == Direction::Tx, m.data.clone())
+                })
+                .collect();
+            proptest::prop_assert_eq!(back, chunks);
         }
     }
 
