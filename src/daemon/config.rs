@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
 /// The whole configuration file.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Config {
     #[serde(rename = "scanner", default)]
@@ -26,7 +26,8 @@ pub struct Config {
     #[serde(default)]
     pub output: OutputConfig,
     // ---- Sections owned by the geometry core, integrity and the filter. Each type must
-    // implement Deserialize + Default (+ deny_unknown_fields); add one line per section:
+    // implement Debug + Clone + Deserialize + Default (with deny_unknown_fields); add one line
+    // per section, and call their own checks from `Config::validate` if they have any:
     // #[serde(default)] pub odometry: crate::odometry::OdometryConfig,
     // #[serde(default)] pub integrity: crate::integrity::IntegrityConfig,
     // #[serde(default)] pub filter: crate::filter::FilterConfig,

@@ -16,14 +16,15 @@ use tokio_util::sync::CancellationToken;
 const HEARTBEAT_POLL: Duration = Duration::from_millis(100);
 
 /// Runs until `cancel` or until the estimate sender is dropped. `now` is the host time in
-/// seconds (the clock of `Estimate::t` when live); `on_sent(now, frame)` sees every frame sent,
-/// for `mavlink.tlog`. A send error ends the task: the caller decides whether to reconnect.
+/// seconds, which paces the heartbeat; `on_sent(frame)` sees every frame sent, for
+/// `mavlink.tlog` (stamped by the caller with wall-clock time). A send error ends the task: the
+/// caller decides whether to reconnect.
 pub async fn run(
     link: &Link,
     mut stream: MavlinkStream,
     mut estimates: watch::Receiver<Option<Estimate>>,
     now: impl Fn() -> f64,
-    mut on_sent: impl FnMut(f64, &[u8]),
+    mut on_sent: impl FnMut(&[u8]),
     cancel: CancellationToken,
 ) -> Result<(), LinkError> {
     let mut heartbeat_poll = tokio::time::interval(HEARTBEAT_POLL);
@@ -42,7 +43,7 @@ pub async fn run(
         };
         if let Some(message) = message {
             if let Some(frame) = link.send(&message).await? {
-                on_sent(now(), &frame);
+                on_sent(&frame);
             }
         }
     }
@@ -99,7 +100,7 @@ mod tests {
         let task = {
             let (sent, cancel) = (sent.clone(), cancel.clone());
             tokio::spawn(async move {
-                let on_sent = |_t: f64, f: &[u8]| sent.lock().unwrap().push(f.to_vec());
+                let on_sent = |f: &[u8]| sent.lock().unwrap().push(f.to_vec());
                 run(&link, stream, estimates_rx, || 0.0, on_sent, cancel).await
             })
         };
@@ -176,7 +177,7 @@ mod tests {
                 stream,
                 estimates_rx,
                 || 0.0,
-                |_, _| {},
+                |_| {},
                 CancellationToken::new(),
             ),
         )

@@ -115,7 +115,8 @@ impl Outputs {
         self.epochs.write_all(&line)
     }
 
-    /// One MAVLink frame exactly as sent, at host time `time_us`.
+    /// One MAVLink frame exactly as sent. `time_us` is wall-clock microseconds since the UNIX
+    /// epoch, which is what MAVProxy, Mission Planner and pymavlink read from a tlog.
     pub fn mavlink(&mut self, time_us: u64, frame: &[u8]) -> Result<(), OutputError> {
         self.tlog.write_all(&tlog_record(time_us, frame))
     }
