@@ -140,15 +140,20 @@ impl Signing {
 
 /// A 32-byte key from 64 hex digits (surrounding whitespace ignored).
 pub fn parse_key_hex(text: &str) -> Result<[u8; 32], LinkError> {
+    decode_hex_key(text).map_err(LinkError::BadKey)
+}
+
+fn decode_hex_key(text: &str) -> Result<[u8; 32], String> {
     let hex = text.trim();
     if hex.len() != 64 {
-        return Err(LinkError::BadKey(format!("has {} characters", hex.len())));
+        return Err(format!("has {} characters", hex.len()));
     }
     let mut key = [0u8; 32];
     for (i, byte) in key.iter_mut().enumerate() {
-        *byte = u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).map_err(|_| {
-            LinkError::BadKey(format!("has a non-hex digit near position {}", 2 * i))
-        })?;
+        *byte = hex
+            .get(2 * i..2 * i + 2)
+            .and_then(|pair| u8::from_str_radix(pair, 16).ok())
+            .ok_or_else(|| format!("has a non-hex digit near position {}", 2 * i))?;
     }
     Ok(key)
 }
@@ -159,10 +164,13 @@ pub fn read_key_file(path: &Path) -> Result<[u8; 32], LinkError> {
         path: path.to_path_buf(),
         source,
     })?;
-    match <[u8; 32]>::try_from(bytes.as_slice()) {
-        Ok(raw) if std::str::from_utf8(&raw).is_err() => Ok(raw),
-        _ => parse_key_hex(&String::from_utf8_lossy(&bytes))
-            .map_err(|e| LinkError::BadKey(format!("in {}: {e}", path.display()))),
+    let as_hex = decode_hex_key(&String::from_utf8_lossy(&bytes));
+    match (as_hex, <[u8; 32]>::try_from(bytes.as_slice())) {
+        (Ok(key), _) | (Err(_), Ok(key)) => Ok(key),
+        (Err(problem), Err(_)) => Err(LinkError::BadKey(format!(
+            "in {} {problem} and is not 32 raw bytes",
+            path.display()
+        ))),
     }
 }
 
@@ -332,9 +340,16 @@ mod tests {
         std::fs::write(&hex_file, format!("{hex}\n")).unwrap();
         assert_eq!(read_key_file(&hex_file).unwrap(), key);
         let raw_file = dir.join(format!("ladar-key-raw-{}", std::process::id()));
-        let raw = [0xF0u8; 32];
+        let raw = *b"0123456789abcdef0123456789abcdef"; // 32 raw bytes that happen to be text
         std::fs::write(&raw_file, raw).unwrap();
         assert_eq!(read_key_file(&raw_file).unwrap(), raw);
+        std::fs::write(&hex_file, "abcd").unwrap();
+        let err = read_key_file(&hex_file).unwrap_err().to_string();
+        assert_eq!(err.matches("MAVLink signing key").count(), 1, "{err}");
+        assert!(
+            err.contains("has 4 characters") && err.contains("64 hex digits"),
+            "{err}"
+        );
         std::fs::remove_file(hex_file).unwrap();
         std::fs::remove_file(raw_file).unwrap();
         let missing = read_key_file(Path::new("/nonexistent/key"))
