@@ -487,7 +487,7 @@ fn syntax_error(text: &str, path: &Path, error: &toml::de::Error) -> ConfigError
     let location = error
         .span()
         .map(|span| {
-            let before = &text[..span.start.min(text.len())];
+            let before = text.get(..span.start).unwrap_or(text);
             let line = before.matches('\n').count() + 1;
             let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
             format!(" line {line} column {column}")
