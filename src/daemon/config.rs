@@ -804,6 +804,39 @@ path = "/var/lib/ladar-odometer"
         );
     }
 
+    proptest::proptest! {
+        #[test]
+        fn any_text_gives_a_config_or_lines_naming_the_file(text in "\\PC{0,200}") {
+            if let Err(errors) = Config::parse(&text, path()) {
+                for error in &errors.0 {
+                    let line = error.to_string();
+                    proptest::prop_assert!(!line.contains('\n') && line.contains("config.toml"), "{}", line);
+                }
+            }
+        }
+
+        #[test]
+        fn a_damaged_valid_file_never_panics(cut in 0..VALID.len(), insert in "\\PC{0,8}") {
+            let mut text = VALID.to_string();
+            let at = (0..=cut).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
+            text.insert_str(at, &insert);
+            let _ = Config::parse(&text, path());
+        }
+
+        #[test]
+        fn sensor_connections_print_back(
+            device in "/dev/[a-z_]{1,12}",
+            baud in proptest::option::of(1u32..4_000_000),
+            host in "[a-z0-9.]{1,15}",
+            port in 1u16..,
+        ) {
+            let serial = SensorConnection::Serial { path: device.into(), baud };
+            proptest::prop_assert_eq!(serial.to_string().parse::<SensorConnection>(), Ok(serial));
+            let tcp = SensorConnection::Tcp { host, port };
+            proptest::prop_assert_eq!(tcp.to_string().parse::<SensorConnection>(), Ok(tcp));
+        }
+    }
+
     #[test]
     fn example_configs_are_valid() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/examples");
