@@ -47,8 +47,6 @@ pub enum Profile {
 }
 
 impl Profile {
-    pub const NAMES: &'static str = "px4, ardupilot, ardupilot-odometry";
-
     /// Rates the autopilot fuses well: PX4 drops EV below ~30 Hz; EKF3 drops body odometry
     /// samples closer than 50 ms; AP_VisualOdom needs at least 4 Hz.
     pub fn rate_range_hz(self) -> (f64, f64) {
