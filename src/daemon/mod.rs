@@ -1,1 +1,14 @@
 //! The task layer: tokio, serial ports, sockets, files and clocks.
+//!
+//! The modules here are the daemon's edges, each testable on its own: the configuration file,
+//! the MAVLink messages, the link that carries them and the task that sends them, recordings and
+//! the thread that writes them, the output files, and the systemd watchdog.
+
+pub mod config;
+pub mod link;
+pub mod mavlink_out;
+pub mod mavlink_task;
+pub mod outputs;
+pub mod recorder_thread;
+pub mod recording;
+pub mod watchdog;

@@ -1,0 +1,867 @@
+//! The TOML configuration file: the daemon's sections (sensors, MAVLink, recording, outputs),
+//! read with unknown keys refused and every value checked at start-up, so that a typo is one
+//! clear line naming the key and the file instead of a surprise in flight.
+//!
+//! Example files: config/examples/.
+
+use super::link::{parse_key_hex, read_key_file, LinkAddress, Signing};
+use super::mavlink_out::{Identity, Profile, DEFAULT_COMPONENT_ID};
+use crate::sensors::Mount;
+use serde::Deserialize;
+use std::fmt;
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+/// The whole configuration file.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    #[serde(rename = "scanner", default)]
+    pub scanners: Vec<ScannerConfig>,
+    pub imu: ImuConfig,
+    #[serde(default)]
+    pub mavlink: Option<MavlinkConfig>,
+    #[serde(default)]
+    pub recording: RecordingConfig,
+    #[serde(default)]
+    pub output: OutputConfig,
+    // ---- Sections owned by the geometry core, integrity and the filter. Each type must
+    // implement Debug + Clone + Deserialize + Default (with deny_unknown_fields); add one line
+    // per section, and call their own checks from `Config::validate` if they have any:
+    // #[serde(default)] pub odometry: crate::odometry::OdometryConfig,
+    // #[serde(default)] pub integrity: crate::integrity::IntegrityConfig,
+    // #[serde(default)] pub filter: crate::filter::FilterConfig,
+}
+
+/// How to reach a sensor: `serial:/dev/hokuyo_front`, `serial:/dev/xsens:115200` or
+/// `tcp:192.168.0.10:10940`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SensorConnection {
+    /// USB CDC devices ignore the baud rate; a real UART needs it.
+    Serial {
+        path: PathBuf,
+        baud: Option<u32>,
+    },
+    Tcp {
+        host: String,
+        port: u16,
+    },
+}
+
+impl FromStr for SensorConnection {
+    type Err = String;
+
+    fn from_str(text: &str) -> Result<Self, String> {
+        let usage = "use serial:/dev/NAME, serial:/dev/NAME:BAUD or tcp:HOST:PORT";
+        match text.split_once(':') {
+            Some(("serial", rest)) => {
+                let (path, baud) = match rest.rsplit_once(':') {
+                    Some((path, baud)) => {
+                        let baud = baud
+                            .parse::<u32>()
+                            .ok()
+                            .filter(|&b| b > 0)
+                            .ok_or_else(|| format!("`{baud}` is not a baud rate; {usage}"))?;
+                        (path, Some(baud))
+                    }
+                    None => (rest, None),
+                };
+                if !path.starts_with('/') {
+                    return Err(format!("the device must be an absolute path; {usage}"));
+                }
+                Ok(Self::Serial {
+                    path: PathBuf::from(path),
+                    baud,
+                })
+            }
+            Some(("tcp", rest)) => {
+                let (host, port) = rest
+                    .rsplit_once(':')
+                    .ok_or_else(|| format!("no port; {usage}"))?;
+                let port = port
+                    .parse::<u16>()
+                    .ok()
+                    .filter(|&p| p > 0)
+                    .ok_or_else(|| format!("`{port}` is not a port number; {usage}"))?;
+                if host.is_empty() {
+                    return Err(format!("the host is empty; {usage}"));
+                }
+                Ok(Self::Tcp {
+                    host: host.to_string(),
+                    port,
+                })
+            }
+            _ => Err(usage.to_string()),
+        }
+    }
+}
+
+impl fmt::Display for SensorConnection {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Serial { path, baud: None } => write!(f, "serial:{}", path.display()),
+            Self::Serial {
+                path,
+                baud: Some(baud),
+            } => write!(f, "serial:{}:{baud}", path.display()),
+            Self::Tcp { host, port } => write!(f, "tcp:{host}:{port}"),
+        }
+    }
+}
+
+/// Which SCIP streaming command: distances only, or distances with intensities.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScanStream {
+    Md,
+    Me,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScannerConfig {
+    /// Also the recording topic `/<name>/rx`: letters, digits, `-` and `_`.
+    pub name: String,
+    pub connection: String,
+    /// Mount `[roll, pitch, yaw]` in degrees, DESIGN.md section 3.
+    pub rpy_deg: [f64; 3],
+    pub translation_m: [f64; 3],
+    /// Ranging noise, one sigma, metres.
+    pub range_sigma_m: f64,
+    #[serde(default = "ScannerConfig::default_stream")]
+    pub stream: ScanStream,
+    /// Defaults to the device's AMIN / AMAX.
+    #[serde(default)]
+    pub first_step: Option<u32>,
+    #[serde(default)]
+    pub last_step: Option<u32>,
+    #[serde(default = "ScannerConfig::default_cluster")]
+    pub cluster: u32,
+}
+
+impl ScannerConfig {
+    fn default_stream() -> ScanStream {
+        ScanStream::Md
+    }
+
+    fn default_cluster() -> u32 {
+        1
+    }
+
+    pub fn mount(&self) -> Mount {
+        Mount::from_rpy_deg(self.rpy_deg, self.translation_m)
+    }
+
+    /// Valid after [`Config::parse`].
+    pub fn connection(&self) -> SensorConnection {
+        self.connection
+            .parse()
+            .expect("validated when the configuration was loaded")
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ImuOutput {
+    /// Acceleration and rate of turn.
+    Rate,
+    /// DeltaQ and DeltaV (strapdown-integrated on the device; no coning or sculling loss).
+    Delta,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub enum ImuSeries {
+    #[serde(rename = "auto")]
+    Auto,
+    #[serde(rename = "100")]
+    Mti100,
+    #[serde(rename = "600")]
+    Mti600,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuConfig {
+    #[serde(default = "ImuConfig::default_name")]
+    pub name: String,
+    pub connection: String,
+    #[serde(default)]
+    pub rpy_deg: [f64; 3],
+    #[serde(default)]
+    pub translation_m: [f64; 3],
+    #[serde(default = "ImuConfig::default_output")]
+    pub output: ImuOutput,
+    #[serde(default = "ImuConfig::default_rate_hz")]
+    pub rate_hz: u32,
+    #[serde(default = "ImuConfig::default_series")]
+    pub series: ImuSeries,
+}
+
+impl ImuConfig {
+    fn default_name() -> String {
+        "imu".into()
+    }
+    fn default_output() -> ImuOutput {
+        ImuOutput::Rate
+    }
+    fn default_rate_hz() -> u32 {
+        100
+    }
+    fn default_series() -> ImuSeries {
+        ImuSeries::Auto
+    }
+
+    pub fn mount(&self) -> Mount {
+        Mount::from_rpy_deg(self.rpy_deg, self.translation_m)
+    }
+
+    /// Valid after [`Config::parse`].
+    pub fn connection(&self) -> SensorConnection {
+        self.connection
+            .parse()
+            .expect("validated when the configuration was loaded")
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MavlinkConfig {
+    pub profile: Profile,
+    /// `serial:/dev/ttyAMA0:921600`, `udpout:HOST:PORT`, `udpin:ADDR:PORT`, `tcpout:...`,
+    /// `tcpin:...`.
+    pub connection: String,
+    #[serde(default = "MavlinkConfig::default_system_id")]
+    pub system_id: u8,
+    #[serde(default = "MavlinkConfig::default_component_id")]
+    pub component_id: u8,
+    /// Defaults to the profile's rate.
+    #[serde(default)]
+    pub rate_hz: Option<f64>,
+    #[serde(default)]
+    pub signing: Option<SigningConfigSection>,
+}
+
+impl MavlinkConfig {
+    fn default_system_id() -> u8 {
+        1
+    }
+    fn default_component_id() -> u8 {
+        DEFAULT_COMPONENT_ID
+    }
+
+    pub fn identity(&self) -> Identity {
+        Identity {
+            system_id: self.system_id,
+            component_id: self.component_id,
+        }
+    }
+
+    pub fn rate_hz(&self) -> f64 {
+        self.rate_hz.unwrap_or(self.profile.default_rate_hz())
+    }
+
+    /// Valid after [`Config::parse`].
+    pub fn address(&self) -> LinkAddress {
+        self.connection
+            .parse()
+            .expect("validated when the configuration was loaded")
+    }
+
+    /// Reads the key (again, from the file if it is one): valid after [`Config::parse`] unless
+    /// the key file changed since.
+    pub fn signing(&self) -> Result<Option<Signing>, String> {
+        self.signing
+            .as_ref()
+            .map(SigningConfigSection::resolve)
+            .transpose()
+    }
+}
+
+/// `[mavlink.signing]`: exactly one of `key` (64 hex digits) and `key_file`.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SigningConfigSection {
+    #[serde(default)]
+    pub key: Option<String>,
+    #[serde(default)]
+    pub key_file: Option<PathBuf>,
+    #[serde(default)]
+    pub link_id: u8,
+    #[serde(default)]
+    pub allow_unsigned: bool,
+}
+
+impl SigningConfigSection {
+    fn resolve(&self) -> Result<Signing, String> {
+        let key = match (&self.key, &self.key_file) {
+            (Some(hex), None) => parse_key_hex(hex),
+            (None, Some(path)) => read_key_file(path),
+            _ => return Err("give exactly one of `key` and `key_file`".into()),
+        }
+        .map_err(|e| e.to_string())?;
+        Ok(Signing {
+            key,
+            link_id: self.link_id,
+            allow_unsigned: self.allow_unsigned,
+        })
+    }
+}
+
+/// `[recording] path = "/var/lib/ladar-odometer"` (a directory: one MCAP file per run) or
+/// `path = "off"`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecordingConfig {
+    #[serde(default = "RecordingConfig::default_path")]
+    pub path: String,
+    /// Seconds between flushes: the most a crash or power cut can lose.
+    #[serde(default = "RecordingConfig::default_flush_interval_s")]
+    pub flush_interval_s: f64,
+}
+
+impl RecordingConfig {
+    fn default_path() -> String {
+        "off".into()
+    }
+    fn default_flush_interval_s() -> f64 {
+        1.0
+    }
+
+    /// The directory to record into, or `None` when recording is off.
+    pub fn directory(&self) -> Option<PathBuf> {
+        (self.path != "off").then(|| PathBuf::from(&self.path))
+    }
+}
+
+impl Default for RecordingConfig {
+    fn default() -> Self {
+        Self {
+            path: Self::default_path(),
+            flush_interval_s: Self::default_flush_interval_s(),
+        }
+    }
+}
+
+/// `[output] dir = "..."`: where `trajectory.tum`, `epochs.jsonl` and `mavlink.tlog` go
+/// (`--out` overrides it); unset means no output files.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    #[serde(default)]
+    pub dir: Option<PathBuf>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error(
+        "cannot read config {path}: {source} (pass --config FILE; examples in config/examples/)"
+    )]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config {path}{location}: {message}")]
+    Syntax {
+        path: PathBuf,
+        location: String,
+        message: String,
+    },
+    #[error("config {path}: {key}: {problem}")]
+    Invalid {
+        path: PathBuf,
+        key: String,
+        problem: String,
+    },
+}
+
+/// Every problem found in one file, one line each.
+#[derive(Debug)]
+pub struct ConfigErrors(pub Vec<ConfigError>);
+
+impl fmt::Display for ConfigErrors {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let lines: Vec<String> = self.0.iter().map(ToString::to_string).collect();
+        f.write_str(&lines.join("\n"))
+    }
+}
+
+impl std::error::Error for ConfigErrors {}
+
+impl Config {
+    pub fn load(path: &Path) -> Result<Self, ConfigErrors> {
+        Self::load_with_text(path).map(|(config, _)| config)
+    }
+
+    /// The configuration and the file's text, which the recording keeps as metadata.
+    pub fn load_with_text(path: &Path) -> Result<(Self, String), ConfigErrors> {
+        let text = std::fs::read_to_string(path).map_err(|source| {
+            ConfigErrors(vec![ConfigError::Read {
+                path: path.to_path_buf(),
+                source,
+            }])
+        })?;
+        Self::parse(&text, path).map(|config| (config, text))
+    }
+
+    /// `path` names the file in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigErrors> {
+        let config: Self =
+            toml::from_str(text).map_err(|e| ConfigErrors(vec![syntax_error(text, path, &e)]))?;
+        let mut problems = Problems {
+            path,
+            errors: Vec::new(),
+        };
+        config.validate(&mut problems);
+        if problems.errors.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigErrors(problems.errors))
+        }
+    }
+
+    fn validate(&self, p: &mut Problems<'_>) {
+        if self.scanners.len() < 2 {
+            p.add(
+                "scanner",
+                "the odometer needs two [[scanner]] sections (two scan planes at different pitch)",
+            );
+        }
+        for (i, scanner) in self.scanners.iter().enumerate() {
+            validate_scanner(&format!("scanner[{i}]"), scanner, p);
+            if self.scanners[..i].iter().any(|s| s.name == scanner.name) {
+                p.add(
+                    &format!("scanner[{i}].name"),
+                    "another scanner has this name",
+                );
+            }
+        }
+        if let [a, b, ..] = self.scanners.as_slice() {
+            let normal = |s: &ScannerConfig| s.mount().rotation * nalgebra::Vector3::z();
+            let angle = normal(a).angle(&normal(b)).to_degrees();
+            if angle.is_finite() && !(5.0..=175.0).contains(&angle) {
+                p.add(
+                    "scanner[1].rpy_deg",
+                    &format!("the two scan planes are {angle:.1} deg apart: tilt one by 5 deg or more so that planes can be found"),
+                );
+            }
+        }
+        validate_imu(&self.imu, p);
+        if self.scanners.iter().any(|s| s.name == self.imu.name) {
+            p.add("imu.name", "a scanner has the same name");
+        }
+        if let Some(mavlink) = &self.mavlink {
+            validate_mavlink(mavlink, p);
+        }
+        let flush = self.recording.flush_interval_s;
+        if !(flush > 0.0 && flush <= 60.0) {
+            p.add("recording.flush_interval_s", "must be in (0, 60] seconds");
+        }
+        if self.recording.path.is_empty() {
+            p.add("recording.path", "empty: give a directory or \"off\"");
+        }
+    }
+}
+
+struct Problems<'a> {
+    path: &'a Path,
+    errors: Vec<ConfigError>,
+}
+
+impl Problems<'_> {
+    fn add(&mut self, key: &str, problem: &str) {
+        self.errors.push(ConfigError::Invalid {
+            path: self.path.to_path_buf(),
+            key: key.to_string(),
+            problem: problem.to_string(),
+        });
+    }
+
+    fn check(&mut self, ok: bool, key: &str, problem: &str) {
+        if !ok {
+            self.add(key, problem);
+        }
+    }
+}
+
+fn syntax_error(text: &str, path: &Path, error: &toml::de::Error) -> ConfigError {
+    let location = error
+        .span()
+        .map(|span| {
+            let before = text.get(..span.start).unwrap_or(text);
+            let line = before.matches('\n').count() + 1;
+            let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+            format!(" line {line} column {column}")
+        })
+        .unwrap_or_default();
+    ConfigError::Syntax {
+        path: path.to_path_buf(),
+        location,
+        message: error.message().trim().replace('\n', " "),
+    }
+}
+
+fn valid_name(name: &str) -> bool {
+    !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+fn validate_mount(key: &str, rpy_deg: &[f64; 3], translation_m: &[f64; 3], p: &mut Problems<'_>) {
+    p.check(
+        rpy_deg.iter().all(|a| a.is_finite() && a.abs() <= 180.0),
+        &format!("{key}.rpy_deg"),
+        "angles must be finite degrees within [-180, 180]",
+    );
+    p.check(
+        translation_m
+            .iter()
+            .all(|t| t.is_finite() && t.abs() <= 10.0),
+        &format!("{key}.translation_m"),
+        "offsets must be finite metres within 10 m of the body origin",
+    );
+}
+
+fn validate_scanner(key: &str, s: &ScannerConfig, p: &mut Problems<'_>) {
+    p.check(
+        valid_name(&s.name),
+        &format!("{key}.name"),
+        "use letters, digits, `-` and `_` (it names the recording topics)",
+    );
+    if let Err(problem) = s.connection.parse::<SensorConnection>() {
+        p.add(
+            &format!("{key}.connection"),
+            &format!("`{}`: {problem}", s.connection),
+        );
+    }
+    validate_mount(key, &s.rpy_deg, &s.translation_m, p);
+    p.check(
+        s.range_sigma_m > 0.0 && s.range_sigma_m <= 0.5,
+        &format!("{key}.range_sigma_m"),
+        "must be in (0, 0.5] metres (Hokuyo datasheets give 0.01 to 0.03)",
+    );
+    p.check(
+        (1..=99).contains(&s.cluster),
+        &format!("{key}.cluster"),
+        "SCIP cluster counts are 1 to 99",
+    );
+    if let (Some(first), Some(last)) = (s.first_step, s.last_step) {
+        p.check(
+            first < last,
+            &format!("{key}.first_step"),
+            "must be smaller than last_step",
+        );
+    }
+}
+
+fn validate_imu(imu: &ImuConfig, p: &mut Problems<'_>) {
+    p.check(
+        valid_name(&imu.name),
+        "imu.name",
+        "use letters, digits, `-` and `_` (it names the recording topics)",
+    );
+    match imu.connection.parse::<SensorConnection>() {
+        Err(problem) => p.add(
+            "imu.connection",
+            &format!("`{}`: {problem}", imu.connection),
+        ),
+        Ok(SensorConnection::Tcp { .. }) => p.add(
+            "imu.connection",
+            "the MTi is a serial device: use serial:/dev/NAME:BAUD",
+        ),
+        Ok(_) => {}
+    }
+    validate_mount("imu", &imu.rpy_deg, &imu.translation_m, p);
+    p.check(
+        (1..=2000).contains(&imu.rate_hz),
+        "imu.rate_hz",
+        "must be 1 to 2000 Hz (the MTi outputs at divisors of 400, 1000 or 2000 Hz)",
+    );
+}
+
+fn validate_mavlink(m: &MavlinkConfig, p: &mut Problems<'_>) {
+    if let Err(e) = m.connection.parse::<LinkAddress>() {
+        p.add("mavlink.connection", &e.to_string());
+    }
+    p.check(
+        m.system_id > 0,
+        "mavlink.system_id",
+        "must be 1 to 255 (use the autopilot's)",
+    );
+    p.check(
+        m.component_id > 0,
+        "mavlink.component_id",
+        "must be 1 to 255 (197 is the odometry component)",
+    );
+    let (low, high) = m.profile.rate_range_hz();
+    if let Some(rate) = m.rate_hz {
+        p.check(
+            rate >= low && rate <= high,
+            "mavlink.rate_hz",
+            &format!("profile {} needs {low} to {high} Hz", m.profile),
+        );
+    }
+    if let Err(problem) = m.signing() {
+        p.add("mavlink.signing", &problem);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const VALID: &str = r#"
+[[scanner]]
+name = "front"
+connection = "serial:/dev/hokuyo_front"
+rpy_deg = [0.0, 0.0, 0.0]
+translation_m = [0.10, 0.0, 0.0]
+range_sigma_m = 0.01
+
+[[scanner]]
+name = "tilted"
+connection = "tcp:192.168.0.10:10940"
+rpy_deg = [0.0, 20.0, 0.0]
+translation_m = [0.10, 0.0, -0.05]
+range_sigma_m = 0.02
+stream = "me"
+first_step = 100
+last_step = 980
+cluster = 2
+
+[imu]
+connection = "serial:/dev/xsens:115200"
+output = "delta"
+rate_hz = 200
+series = "600"
+
+[mavlink]
+profile = "px4"
+connection = "serial:/dev/ttyAMA0:921600"
+
+[mavlink.signing]
+key = "00112233445566778899aabbccddeeff00112233445566778899aabbccddeeff"
+link_id = 1
+
+[recording]
+path = "/var/lib/ladar-odometer"
+"#;
+
+    fn path() -> &'static Path {
+        Path::new("/etc/ladar-odometer/config.toml")
+    }
+
+    fn errors(text: &str) -> Vec<String> {
+        Config::parse(text, path())
+            .unwrap_err()
+            .0
+            .iter()
+            .map(ToString::to_string)
+            .collect()
+    }
+
+    #[test]
+    fn a_valid_file_loads_with_defaults_filled_in() {
+        let config = Config::parse(VALID, path()).unwrap();
+        assert_eq!(config.scanners.len(), 2);
+        assert_eq!(config.scanners[0].stream, ScanStream::Md);
+        assert_eq!(config.scanners[1].cluster, 2);
+        assert_eq!(
+            config.scanners[1].connection(),
+            SensorConnection::Tcp {
+                host: "192.168.0.10".into(),
+                port: 10940
+            }
+        );
+        assert_eq!(
+            config.imu.connection(),
+            SensorConnection::Serial {
+                path: "/dev/xsens".into(),
+                baud: Some(115_200)
+            }
+        );
+        assert_eq!(config.imu.name, "imu");
+        assert_eq!(config.imu.series, ImuSeries::Mti600);
+        let mavlink = config.mavlink.unwrap();
+        assert_eq!(mavlink.identity().component_id, DEFAULT_COMPONENT_ID);
+        assert_eq!(mavlink.rate_hz(), 30.0);
+        let signing = mavlink.signing().unwrap().unwrap();
+        assert_eq!((signing.key[1], signing.link_id), (0x11, 1));
+        assert_eq!(
+            config.recording.directory(),
+            Some(PathBuf::from("/var/lib/ladar-odometer"))
+        );
+        assert_eq!(config.output.dir, None);
+        let pitch = config.scanners[1].mount().rotation.euler_angles().1;
+        assert!((pitch - 20f64.to_radians()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn an_unknown_key_names_it_with_its_line() {
+        let text = VALID.replace("range_sigma_m = 0.02", "range_sigma = 0.02");
+        let errors = errors(&text);
+        assert_eq!(errors.len(), 1);
+        let line = text
+            .lines()
+            .position(|l| l.starts_with("range_sigma ="))
+            .unwrap()
+            + 1;
+        assert!(
+            errors[0].contains("/etc/ladar-odometer/config.toml"),
+            "{}",
+            errors[0]
+        );
+        assert!(errors[0].contains("range_sigma"), "{}", errors[0]);
+        assert!(errors[0].contains(&format!("line {line}")), "{}", errors[0]);
+        assert!(!errors[0].contains('\n'));
+    }
+
+    #[test]
+    fn every_bad_value_is_its_own_line_naming_the_key() {
+        let text = VALID
+            .replace("serial:/dev/hokuyo_front", "/dev/hokuyo_front")
+            .replace("range_sigma_m = 0.01", "range_sigma_m = -1.0")
+            .replace("cluster = 2", "cluster = 0")
+            .replace("rate_hz = 200", "rate_hz = 0")
+            .replace("serial:/dev/ttyAMA0:921600", "udp:1.2.3.4:14550")
+            .replace("link_id = 1", "link_id = 1\nkey_file = \"/k\"")
+            .replace("name = \"tilted\"", "name = \"front\"");
+        let errors = errors(&text);
+        for key in [
+            "scanner[0].connection",
+            "scanner[0].range_sigma_m",
+            "scanner[1].cluster",
+            "scanner[1].name",
+            "imu.rate_hz",
+            "mavlink.connection",
+            "mavlink.signing",
+        ] {
+            assert!(
+                errors.iter().any(|e| e.contains(&format!(": {key}: "))),
+                "{key} missing from {errors:#?}"
+            );
+        }
+        assert_eq!(errors.len(), 7, "{errors:#?}");
+        assert!(errors
+            .iter()
+            .all(|e| !e.contains('\n') && e.contains("config.toml")));
+    }
+
+    #[test]
+    fn parallel_scan_planes_are_refused() {
+        let text = VALID.replace("rpy_deg = [0.0, 20.0, 0.0]", "rpy_deg = [0.0, 2.0, 90.0]");
+        let errors = errors(&text);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(errors[0].contains("scanner[1].rpy_deg") && errors[0].contains("apart"));
+    }
+
+    #[test]
+    fn rate_outside_the_profile_range_is_refused() {
+        let text = VALID.replace(
+            "profile = \"px4\"",
+            "profile = \"ardupilot\"\nrate_hz = 30.0",
+        );
+        let errors = errors(&text);
+        assert!(
+            errors[0].contains("mavlink.rate_hz") && errors[0].contains("10 to 20"),
+            "{errors:?}"
+        );
+    }
+
+    #[test]
+    fn a_bad_enum_value_and_a_missing_section_are_clear() {
+        let bad_enum = errors(&VALID.replace("\"px4\"", "\"apm\""));
+        assert!(
+            bad_enum[0].contains("apm") && bad_enum[0].contains("line"),
+            "{bad_enum:?}"
+        );
+        let start = VALID.find("[imu]").unwrap();
+        let end = VALID.find("[mavlink]").unwrap();
+        let without_imu = format!("{}{}", &VALID[..start], &VALID[end..]);
+        let errors = errors(&without_imu);
+        assert!(errors[0].contains("imu"), "{errors:?}");
+    }
+
+    #[test]
+    fn loading_from_a_file_keeps_its_text_for_the_recording() {
+        let file = std::env::temp_dir().join(format!("ladar-config-{}.toml", std::process::id()));
+        let text = VALID.replace("[mavlink.signing]", "[mavlink.signing]\n# comment kept");
+        std::fs::write(&file, &text).unwrap();
+        let (config, kept) = Config::load_with_text(&file).unwrap();
+        std::fs::remove_file(&file).unwrap();
+        assert_eq!(kept, text);
+        assert_eq!(config.scanners[0].name, "front");
+    }
+
+    #[test]
+    fn a_missing_file_names_the_file_and_the_flag() {
+        let err = Config::load(Path::new("/nonexistent/ladar.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("/nonexistent/ladar.toml") && err.contains("--config"),
+            "{err}"
+        );
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_text_gives_a_config_or_lines_naming_the_file(text in "\\PC{0,200}") {
+            if let Err(errors) = Config::parse(&text, path()) {
+                for error in &errors.0 {
+                    let line = error.to_string();
+                    proptest::prop_assert!(!line.contains('\n') && line.contains("config.toml"), "{}", line);
+                }
+            }
+        }
+
+        #[test]
+        fn a_damaged_valid_file_never_panics(cut in 0..VALID.len(), insert in "\\PC{0,8}") {
+            let mut text = VALID.to_string();
+            let at = (0..=cut).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
+            text.insert_str(at, &insert);
+            let _ = Config::parse(&text, path());
+        }
+
+        #[test]
+        fn sensor_connections_print_back(
+            device in "/dev/[a-z_]{1,12}",
+            baud in proptest::option::of(1u32..4_000_000),
+            host in "[a-z0-9.]{1,15}",
+            port in 1u16..,
+        ) {
+            let serial = SensorConnection::Serial { path: device.into(), baud };
+            proptest::prop_assert_eq!(serial.to_string().parse::<SensorConnection>(), Ok(serial));
+            let tcp = SensorConnection::Tcp { host, port };
+            proptest::prop_assert_eq!(tcp.to_string().parse::<SensorConnection>(), Ok(tcp));
+        }
+    }
+
+    #[test]
+    fn example_configs_are_valid() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/examples");
+        let key_file =
+            std::env::temp_dir().join(format!("ladar-example-key-{}", std::process::id()));
+        std::fs::write(&key_file, "ab".repeat(32)).unwrap();
+        let mut count = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                // Key files live on the target; stand one in for the test.
+                let text = std::fs::read_to_string(&path).unwrap().replace(
+                    "/etc/ladar-odometer/mavlink.key",
+                    &key_file.to_string_lossy(),
+                );
+                if let Err(e) = Config::parse(&text, &path) {
+                    panic!("{e}");
+                }
+                count += 1;
+            }
+        }
+        std::fs::remove_file(&key_file).unwrap();
+        assert!(
+            count >= 3,
+            "expected the px4, ardupilot and ethernet examples"
+        );
+    }
+}
