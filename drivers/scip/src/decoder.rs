@@ -151,7 +151,10 @@ enum FrameState {
     Collecting,
     Complete,
     Taken,
-    Overflowed,
+    /// Frame limit exceeded; the error is reported next, then bytes are discarded.
+    Overflowed {
+        after_lf: bool,
+    },
     /// Skipping an oversized frame up to its empty line; the flag records a trailing LF.
     Discarding {
         after_lf: bool,
@@ -202,6 +205,10 @@ impl Decoder {
     /// Consumes bytes up to and including the end of the next complete frame (or all of
     /// `input`), returning how many were used. Call [`Decoder::reply`] after each call.
     pub fn push(&mut self, input: &[u8]) -> usize {
+        if let FrameState::Overflowed { after_lf } = self.state {
+            // The caller skipped `reply()`; the error is dropped but discarding still happens.
+            self.state = FrameState::Discarding { after_lf };
+        }
         if matches!(self.state, FrameState::Complete | FrameState::Taken) {
             self.frame.clear();
             self.state = FrameState::Collecting;
@@ -222,22 +229,16 @@ impl Decoder {
                     }
                 }
                 FrameState::Collecting => {
-                    let Some(lf) = rest.iter().position(|&b| b == b'\n') else {
-                        self.frame.extend_from_slice(rest);
-                        used = input.len();
-                        if self.frame.len() > self.max_frame {
-                            self.overflow();
-                            return used;
-                        }
-                        break;
-                    };
-                    self.frame.extend_from_slice(&rest[..lf]);
-                    used += lf + 1;
-                    if self.frame.len() > self.max_frame {
-                        self.overflow();
+                    let lf = rest.iter().position(|&b| b == b'\n');
+                    let line = &rest[..lf.unwrap_or(rest.len())];
+                    used += line.len() + usize::from(lf.is_some());
+                    // Checked before copying, so one huge chunk cannot grow the buffer either.
+                    if self.frame.len() + line.len() > self.max_frame {
+                        self.overflow(lf.is_some());
                         return used;
                     }
-                    if self.end_line() {
+                    self.frame.extend_from_slice(line);
+                    if lf.is_some() && self.end_line() {
                         self.state = FrameState::Complete;
                         return used;
                     }
@@ -248,9 +249,9 @@ impl Decoder {
         used
     }
 
-    fn overflow(&mut self) {
+    fn overflow(&mut self, after_lf: bool) {
         self.frame.clear();
-        self.state = FrameState::Overflowed;
+        self.state = FrameState::Overflowed { after_lf };
     }
 
     /// Closes the current line; true if it was the empty line that ends a frame.
@@ -271,8 +272,8 @@ impl Decoder {
     /// The frame completed by the last [`Decoder::push`], decoded; `None` if none completed.
     pub fn reply(&mut self) -> Option<Result<Reply<'_>, DecodeError>> {
         match self.state {
-            FrameState::Overflowed => {
-                self.state = FrameState::Discarding { after_lf: false };
+            FrameState::Overflowed { after_lf } => {
+                self.state = FrameState::Discarding { after_lf };
                 Some(Err(DecodeError::FrameTooLong {
                     limit: self.max_frame,
                 }))
@@ -495,4 +496,36 @@ fn parse_scan<'a>(
         ranges,
         intensities,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn garbage_without_empty_lines_is_bounded_and_reported_once() {
+        let mut decoder = Decoder::with_max_frame(1000);
+        let garbage: Vec<u8> = (0..200_000u32)
+            .map(|i| if i % 50 == 49 { b'\n' } else { b'A' })
+            .collect();
+        let mut errors = Vec::new();
+        decoder.feed(&garbage, |r| errors.push(r.err()));
+        decoder.feed(&[b'x'; 1_000_000], |r| errors.push(r.err()));
+        assert_eq!(
+            errors,
+            vec![Some(DecodeError::FrameTooLong { limit: 1000 })]
+        );
+        assert!(decoder.frame.capacity() <= 1000);
+        let mut ok = 0;
+        decoder.feed(b"\n\nQT\n00P\n\n", |r| ok += usize::from(r.is_ok()));
+        assert_eq!(ok, 1);
+    }
+
+    #[test]
+    fn crlf_line_ends_are_accepted() {
+        let mut decoder = Decoder::new();
+        let mut statuses = Vec::new();
+        decoder.feed(b"BM\r\n02R\r\n\r\n", |r| statuses.push(r.map(|r| r.status)));
+        assert_eq!(statuses, vec![Ok(Status::Code(*b"02"))]);
+    }
 }

@@ -300,3 +300,28 @@ fn corrupted_scan_is_dropped_and_counted() {
     assert_eq!(scans[1].ranges_mm[0], 3000);
     assert_eq!(rig.device.stats().decode_errors, 1);
 }
+
+#[test]
+fn timestamps_unwrap_across_the_24_bit_wrap() {
+    let mut rig = Rig::new(
+        Model::utm_30lx(),
+        DeviceConfig {
+            clock_samples: 0,
+            ..DeviceConfig::default()
+        },
+    );
+    start_and_stream(&mut rig, 0);
+    let steps = rig.sensor.model().step_count();
+    let ranges = vec![1500u32; steps];
+    let wrap = 1u32 << 24;
+    for i in 0..6u32 {
+        let time = wrap - 75 + 25 * i; // the last three scans are past the wrap
+        rig.sensor
+            .push_scan(time & (wrap - 1), &ranges, None)
+            .unwrap();
+        rig.exchange(0.025);
+    }
+    let stamps: Vec<u64> = rig.scans().iter().map(|s| s.timestamp_ms).collect();
+    let expected: Vec<u64> = (0..6).map(|i| u64::from(wrap) - 75 + 25 * i).collect();
+    assert_eq!(stamps, expected);
+}
