@@ -232,8 +232,9 @@ impl Decoder {
                     let lf = rest.iter().position(|&b| b == b'\n');
                     let line = &rest[..lf.unwrap_or(rest.len())];
                     used += line.len() + usize::from(lf.is_some());
-                    // Checked before copying, so one huge chunk cannot grow the buffer either.
-                    if self.frame.len() + line.len() > self.max_frame {
+                    // Checked before copying, so one huge chunk cannot grow the buffer either; an
+                    // empty line always gets through, since it is what ends the frame.
+                    if !line.is_empty() && self.frame.len() + line.len() > self.max_frame {
                         self.overflow(lf.is_some());
                         return used;
                     }
