@@ -523,6 +523,20 @@ mod tests {
     }
 
     #[test]
+    fn frame_filled_to_the_limit_still_ends_at_its_empty_line() {
+        // Regression (proptest): a frame at exactly the limit swallowed the reply after it.
+        let mut decoder = Decoder::with_max_frame(8);
+        let mut results = Vec::new();
+        decoder.feed(b"ABCDEFG\n\nQT\n00P\n\n", |r| {
+            results.push(r.map(|r| r.status))
+        });
+        assert_eq!(
+            results,
+            vec![Err(DecodeError::MissingStatus), Ok(Status::OK)]
+        );
+    }
+
+    #[test]
     fn crlf_line_ends_are_accepted() {
         let mut decoder = Decoder::new();
         let mut statuses = Vec::new();

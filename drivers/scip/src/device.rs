@@ -377,10 +377,8 @@ impl Inner {
         let command = reply.command();
         match self.phase {
             Phase::Probing => self.on_probe_reply(&reply),
-            Phase::SwitchingProtocol if command == b"SCIP2.0" => {
-                self.send(Command::Quit, Phase::Probing)
-            }
-            Phase::LeavingTimeMode if command == b"TM2" => self.send(Command::Quit, Phase::Probing),
+            Phase::SwitchingProtocol if command == b"SCIP2.0" => self.probe_from_scratch(),
+            Phase::LeavingTimeMode if command == b"TM2" => self.probe_from_scratch(),
             Phase::ReadingVersion if command == b"VV" => match reply.body {
                 Body::Info(info) => {
                     self.events
