@@ -43,6 +43,8 @@ pub struct DeviceConfig {
     pub cluster: u8,
     /// Scans skipped between transmitted scans (0..=9).
     pub interval: u8,
+    /// Scans to stream (1..=99), or 0 for unlimited until `stop`.
+    pub scan_count: u8,
     /// TM1 round trips taken at start-up for clock alignment (0 skips TM entirely).
     pub clock_samples: u8,
     /// Seconds to wait for a command's reply.
@@ -60,6 +62,7 @@ impl Default for DeviceConfig {
             steps: None,
             cluster: 1,
             interval: 0,
+            scan_count: 0,
             clock_samples: 5,
             reply_timeout: 1.0,
             stream_timeout: 1.0,
@@ -501,7 +504,7 @@ impl Inner {
                 cluster: self.config.cluster,
             },
             interval: self.config.interval,
-            count: 0,
+            count: self.config.scan_count,
         }
     }
 

@@ -325,3 +325,19 @@ fn timestamps_unwrap_across_the_24_bit_wrap() {
     let expected: Vec<u64> = (0..6).map(|i| u64::from(wrap) - 75 + 25 * i).collect();
     assert_eq!(stamps, expected);
 }
+
+#[test]
+fn a_finite_stream_counts_down_and_ends() {
+    let config = DeviceConfig {
+        scan_count: 3,
+        clock_samples: 0,
+        ..DeviceConfig::default()
+    };
+    let mut rig = Rig::new(Model::urg_04lx(), config);
+    start_and_stream(&mut rig, 5);
+    let remaining: Vec<u8> = rig.scans().iter().map(|s| s.remaining).collect();
+    assert_eq!(remaining, vec![2, 1, 0]);
+    assert!(rig.events.contains(&DeviceEvent::StreamEnded));
+    assert_eq!(rig.device.phase(), Phase::Idle);
+    assert!(!rig.sensor.is_streaming());
+}
