@@ -95,7 +95,8 @@ pub struct ClockSample {
 /// One streamed scan. Hand it back with [`Device::recycle`] to reuse its buffers.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scan {
-    /// Sensor time of step `range.start`'s revolution start (step 0), unwrapped, ms.
+    /// Sensor time of step 0 of this revolution, unwrapped, ms; step k was measured
+    /// `k * 60 / (SCAN * ARES)` s later (PROTOCOLS 1.6).
     pub timestamp_ms: u64,
     pub raw_timestamp: u32,
     /// Host time when the reply's last byte arrived.

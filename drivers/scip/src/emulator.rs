@@ -7,7 +7,8 @@ use crate::command::{DataKind, StepRange};
 use crate::encoding::{encode_value, push_data_blocks, push_summed_line};
 use crate::params::{Parameters, Version};
 
-/// What the emulated sensor reports about itself.
+/// What the emulated sensor reports about itself. Only the PP values of the presets are sourced
+/// (PROTOCOLS 1.8); their VV strings are plausible placeholders.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Model {
     pub version: Version,
