@@ -1,0 +1,110 @@
+//! After warm-up neither the decoder nor the streaming device allocates per message.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use scip::{Body, Decoder, Device, DeviceConfig, DeviceEvent, Emulator, Model, Reply};
+
+struct CountingAllocator;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: CountingAllocator = CountingAllocator;
+
+/// `scans` ME scans of a UTM-30LX after the stream acknowledgement, as one byte string.
+fn me_stream(scans: u32) -> Vec<u8> {
+    let mut sensor = Emulator::new(Model::utm_30lx());
+    sensor.handle_input(b"ME0000108001000\n");
+    let mut ack = Vec::new();
+    sensor.take_output(&mut ack); // the acknowledgement: the device below gets its own
+    for i in 0..scans {
+        let ranges: Vec<u32> = (0..1081).map(|s| 300 + (s * 13 + i) % 20000).collect();
+        sensor.push_scan(i * 25, &ranges, Some(&ranges)).unwrap();
+    }
+    let mut bytes = Vec::new();
+    sensor.take_output(&mut bytes);
+    bytes
+}
+
+// One test per binary: the counter is global, so a parallel test would disturb it.
+#[test]
+fn decoder_and_device_do_not_allocate_per_scan_after_warm_up() {
+    let stream = me_stream(60);
+    let half = stream.len() / 2;
+
+    let mut decoder = Decoder::new();
+    let mut scans = 0;
+    let mut count = |reply: Result<scip::Reply<'_>, scip::DecodeError>| {
+        if let Ok(Reply {
+            body: Body::Scan(_),
+            ..
+        }) = reply
+        {
+            scans += 1;
+        }
+    };
+    decoder.feed(&stream[..half], &mut count);
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    for chunk in stream[half..].chunks(100) {
+        decoder.feed(chunk, &mut count);
+    }
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed) - before,
+        0,
+        "decoder allocated"
+    );
+    assert_eq!(scans, 60);
+
+    // The device, with scans handed back through `recycle`.
+    let mut device = Device::new(DeviceConfig {
+        data: scip::DataKind::DistanceIntensity,
+        steps: Some((0, 1080)),
+        clock_samples: 0,
+        ..DeviceConfig::default()
+    });
+    let mut sensor = Emulator::new(Model::utm_30lx());
+    device.start();
+    let mut wire = Vec::new();
+    for _ in 0..10 {
+        while let Some(bytes) = device.poll_transmit(0.0) {
+            sensor.handle_input(bytes);
+        }
+        wire.clear();
+        sensor.take_output(&mut wire);
+        device.handle_input(0.0, &wire);
+        while device.poll_event().is_some() {}
+    }
+    assert_eq!(device.phase(), scip::Phase::Streaming);
+    let mut delivered = 0;
+    let mut run = |device: &mut Device, bytes: &[u8]| {
+        for chunk in bytes.chunks(100) {
+            device.handle_input(1.0, chunk);
+            while let Some(event) = device.poll_event() {
+                if let DeviceEvent::Scan(scan) = event {
+                    delivered += 1;
+                    device.recycle(scan);
+                }
+            }
+        }
+    };
+    run(&mut device, &stream[..half]);
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    run(&mut device, &stream[half..]);
+    assert_eq!(
+        ALLOCATIONS.load(Ordering::Relaxed) - before,
+        0,
+        "device allocated"
+    );
+    assert_eq!(delivered, 60);
+}
