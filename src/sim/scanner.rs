@@ -1,0 +1,246 @@
+//! Simulated Hokuyo scanners: per-beam timing, pose at each beam's time, range noise, device
+//! error codes and 1 mm quantisation, as the device would report them.
+
+use super::scene::{CastScene, Scene};
+use super::trajectory::Trajectory;
+use crate::sensors::{Mount, Scan, ScannerGeometry};
+use nalgebra::Vector3;
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ScannerModel {
+    #[serde(rename = "urg-04lx")]
+    Urg04lx,
+    #[serde(rename = "utm-30lx")]
+    Utm30lx,
+    #[serde(rename = "ust-20lx")]
+    Ust20lx,
+    /// Geometry from the scanner's `geometry` key; error codes as the UTM-30LX.
+    Custom,
+}
+
+impl ScannerModel {
+    pub fn geometry(self) -> Option<ScannerGeometry> {
+        match self {
+            Self::Urg04lx => Some(ScannerGeometry::URG_04LX),
+            Self::Utm30lx => Some(ScannerGeometry::UTM_30LX),
+            Self::Ust20lx => Some(ScannerGeometry::UST_20LX),
+            Self::Custom => None,
+        }
+    }
+
+    /// What the device reports when nothing is within range (metres = raw mm / 1000):
+    /// URG-04LX code 0, UTM/UST code 1 ("no object in range").
+    pub fn no_return_m(self) -> f64 {
+        match self {
+            Self::Urg04lx => 0.0,
+            _ => 0.001,
+        }
+    }
+
+    /// What a dropped-out beam reports: URG-04LX code 6 ("others"), UTM/UST code 5 ("other").
+    pub fn dropout_m(self) -> f64 {
+        match self {
+            Self::Urg04lx => 0.006,
+            _ => 0.005,
+        }
+    }
+
+    /// What a target closer than DMIN gives: URG-04LX code 0, UTM/UST code 2 ("too near").
+    pub fn too_near_m(self) -> f64 {
+        match self {
+            Self::Urg04lx => 0.0,
+            _ => 0.002,
+        }
+    }
+}
+
+/// One scanner as configured. Scans run back to back from `phase_s`; with `skip = n` only every
+/// (n+1)-th revolution is reported (SCIP `MD` scan interval).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScannerConfig {
+    pub name: String,
+    pub model: ScannerModel,
+    /// Required for `custom`, overrides the model's geometry otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub geometry: Option<ScannerGeometry>,
+    /// `[roll, pitch, yaw]` of the scanner frame in the body frame (DESIGN 3).
+    pub mount_rpy_deg: [f64; 3],
+    #[serde(default)]
+    pub mount_translation_m: [f64; 3],
+    /// Gaussian range noise, 1 sigma.
+    pub range_sigma_m: f64,
+    /// Probability that a beam returns an error code instead of a range.
+    #[serde(default)]
+    pub dropout_probability: f64,
+    /// Reported steps; default AMIN..=AMAX.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steps: Option<[u32; 2]>,
+    #[serde(default)]
+    pub skip: u32,
+    /// Time of step 0 of the first revolution.
+    #[serde(default)]
+    pub phase_s: f64,
+}
+
+impl ScannerConfig {
+    pub fn new(name: &str, model: ScannerModel, mount_rpy_deg: [f64; 3], sigma: f64) -> Self {
+        Self {
+            name: name.to_string(),
+            model,
+            geometry: None,
+            mount_rpy_deg,
+            mount_translation_m: [0.0; 3],
+            range_sigma_m: sigma,
+            dropout_probability: 0.0,
+            steps: None,
+            skip: 0,
+            phase_s: 0.0,
+        }
+    }
+
+    /// The geometry in force; `None` only for a `custom` model without `geometry`.
+    pub fn resolved_geometry(&self) -> Option<ScannerGeometry> {
+        self.geometry.or(self.model.geometry())
+    }
+
+    pub fn mount(&self) -> Mount {
+        Mount::from_rpy_deg(self.mount_rpy_deg, self.mount_translation_m)
+    }
+
+    /// Time between two reported scans.
+    pub fn report_period(&self, geometry: &ScannerGeometry) -> f64 {
+        geometry.scan_period() * f64::from(self.skip + 1)
+    }
+
+    /// Why this scanner cannot be simulated, if it cannot.
+    pub fn problem(&self) -> Option<String> {
+        let Some(g) = self.resolved_geometry() else {
+            return Some(format!(
+                "scanner \"{}\": model custom needs a [scanners.geometry] table",
+                self.name
+            ));
+        };
+        let [first, last] = self.steps.unwrap_or([g.amin, g.amax]);
+        let bad = if g.ares == 0 || g.rpm == 0 {
+            "geometry ares and rpm must be positive"
+        } else if first > last || last >= g.ares {
+            "steps must satisfy first <= last < ares"
+        } else if self.range_sigma_m.is_nan() || self.range_sigma_m < 0.0 {
+            "range_sigma_m must be zero or positive"
+        } else if !(0.0..=1.0).contains(&self.dropout_probability) {
+            "dropout_probability must be within 0..1"
+        } else {
+            return None;
+        };
+        Some(format!("scanner \"{}\": {bad}", self.name))
+    }
+}
+
+/// A validated scanner ready to cast.
+#[derive(Debug, Clone)]
+pub struct SimScanner {
+    pub config: ScannerConfig,
+    pub geometry: ScannerGeometry,
+    pub mount: Mount,
+    first_step: u32,
+    /// Beam direction of each reported step in the body frame.
+    directions_body: Vec<Vector3<f64>>,
+}
+
+impl SimScanner {
+    /// `config` must have passed [`ScannerConfig::problem`].
+    pub(crate) fn new(config: &ScannerConfig) -> Self {
+        let geometry = config
+            .resolved_geometry()
+            .expect("validated scanner has a geometry");
+        let [first, last] = config.steps.unwrap_or([geometry.amin, geometry.amax]);
+        let mount = config.mount();
+        let directions_body = (first..=last)
+            .map(|k| mount.rotation * geometry.step_direction(f64::from(k)))
+            .collect();
+        Self {
+            config: config.clone(),
+            geometry,
+            mount,
+            first_step: first,
+            directions_body,
+        }
+    }
+
+    pub fn range_sigma_m(&self) -> f64 {
+        self.config.range_sigma_m
+    }
+
+    /// Casts one revolution starting (step 0) at `t0`, appending to `ranges` and, if given, the
+    /// index of the patch each beam hit.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn cast(
+        &self,
+        sensor: usize,
+        t0: f64,
+        trajectory: &Trajectory,
+        scene: &Scene,
+        cast_scene: &CastScene,
+        rng: &mut ChaCha8Rng,
+        mut hits: Option<&mut Vec<Option<usize>>>,
+    ) -> Scan {
+        let step_period = self.geometry.step_period();
+        let still = matches!(trajectory, Trajectory::Stationary { .. });
+        let mut pose = trajectory.pose(t0);
+        let mut ranges = Vec::with_capacity(self.directions_body.len());
+        for (i, dir_body) in self.directions_body.iter().enumerate() {
+            let t = t0 + f64::from(self.first_step + i as u32) * step_period;
+            if !still {
+                pose = trajectory.pose(t);
+            }
+            let (p, q) = &pose;
+            let origin = p + q * self.mount.translation;
+            let dir = q * dir_body;
+            let hit = cast_scene.cast(scene, t, &origin, &dir);
+            if let Some(hits) = hits.as_deref_mut() {
+                hits.push(hit.map(|(_, patch)| patch));
+            }
+            ranges.push(self.report(hit.map(|(range, _)| range), rng));
+        }
+        Scan {
+            sensor,
+            t0,
+            first_step: self.first_step,
+            cluster: 1,
+            ranges_m: ranges,
+        }
+    }
+
+    /// The value the device would send for a true range (metres, 1 mm resolution).
+    fn report(&self, true_range: Option<f64>, rng: &mut ChaCha8Rng) -> f64 {
+        let model = self.config.model;
+        if self.config.dropout_probability > 0.0
+            && rng.gen::<f64>() < self.config.dropout_probability
+        {
+            return model.dropout_m();
+        }
+        let Some(range) = true_range else {
+            return model.no_return_m();
+        };
+        let noise: f64 = if self.config.range_sigma_m > 0.0 {
+            let unit: f64 = StandardNormal.sample(rng);
+            self.config.range_sigma_m * unit
+        } else {
+            0.0
+        };
+        let measured = ((range + noise) * 1000.0).round() / 1000.0;
+        if measured > self.geometry.dmax_m {
+            model.no_return_m()
+        } else if measured < self.geometry.dmin_m {
+            model.too_near_m()
+        } else {
+            measured
+        }
+    }
+}
