@@ -112,19 +112,24 @@ pub fn paper_sim(bias: PaperBias) -> Scenario {
     }
 }
 
+/// Rounds away binary noise such as 0.7999999999999999 so the scenario files read cleanly.
+fn tidy<const N: usize>(values: [f64; N]) -> [f64; N] {
+    values.map(|v| (v * 1e9).round() / 1e9)
+}
+
 /// Vertical wall patch from `(x0, y0)` to `(x1, y1)` between heights `z_top` and `z_bottom`.
 fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
     let along = Vector3::new(to[0] - from[0], to[1] - from[1], 0.0);
     Patch::new(
         name,
-        [
+        tidy([
             (from[0] + to[0]) / 2.0,
             (from[1] + to[1]) / 2.0,
             (z_top + z_bottom) / 2.0,
-        ],
-        along.normalize().into(),
+        ]),
+        tidy(along.normalize().into()),
         [0.0, 0.0, 1.0],
-        [along.norm() / 2.0, (z_bottom - z_top) / 2.0],
+        tidy([along.norm() / 2.0, (z_bottom - z_top) / 2.0]),
     )
 }
 
@@ -132,10 +137,10 @@ fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> 
 fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     Patch::new(
         name,
-        [(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z],
+        tidy([(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z]),
         [1.0, 0.0, 0.0],
         [0.0, 1.0, 0.0],
-        [(x[1] - x[0]) / 2.0, (y[1] - y[0]) / 2.0],
+        tidy([(x[1] - x[0]) / 2.0, (y[1] - y[0]) / 2.0]),
     )
 }
 
@@ -148,14 +153,14 @@ pub fn office_door() -> Scenario {
     let door_hinge = [0.45, 2.79];
     let door = Patch::new(
         "door",
-        [
+        tidy([
             door_hinge[0] - 0.45,
             door_hinge[1],
             (door_top + floor) / 2.0,
-        ],
+        ]),
         [1.0, 0.0, 0.0],
         [0.0, 0.0, 1.0],
-        [0.45, (floor - door_top) / 2.0],
+        tidy([0.45, (floor - door_top) / 2.0]),
     )
     .with_motion(Motion::Rotate {
         pivot_m: [door_hinge[0], door_hinge[1], 0.0],
@@ -238,10 +243,10 @@ fn hallway(back_x: f64, end_x: f64, door: Profile) -> Scene {
             wall("room-wall", [-1.0, 3.5], [2.5, 3.5], ceiling, floor),
             Patch::new(
                 "door",
-                [(door_from + door_to) / 2.0, 1.1, (door_top + floor) / 2.0],
+                tidy([(door_from + door_to) / 2.0, 1.1, (door_top + floor) / 2.0]),
                 [1.0, 0.0, 0.0],
                 [0.0, 0.0, 1.0],
-                [(door_to - door_from) / 2.0, (floor - door_top) / 2.0],
+                tidy([(door_to - door_from) / 2.0, (floor - door_top) / 2.0]),
             )
             .with_motion(Motion::Rotate {
                 pivot_m: [door_to, 1.1, 0.0],

@@ -11,7 +11,8 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
-const MICRO_G: f64 = 1e-6 * GRAVITY;
+/// 1 ug in m/s^2, written out so the scenario files show round numbers.
+const MICRO_G: f64 = 9.80665e-6;
 
 /// Error model of one triad. Units: gyro rad/s, accelerometer m/s^2.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -50,7 +51,7 @@ impl TriadErrors {
     pub fn mti_accel() -> Self {
         Self {
             noise_density: 60.0 * MICRO_G,
-            bias_random_walk: 15.0 * MICRO_G / 10.0,
+            bias_random_walk: 1.5 * MICRO_G,
             turn_on_bias: [0.02, -0.015, 0.01],
             scale_factor: [300e-6, -200e-6, 100e-6],
         }

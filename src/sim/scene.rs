@@ -21,6 +21,12 @@ pub enum Profile {
     Step { at_s: f64, amount: f64 },
 }
 
+impl Motion {
+    pub fn is_static(&self) -> bool {
+        matches!(self, Self::Static)
+    }
+}
+
 impl Profile {
     pub fn value(&self, t: f64) -> f64 {
         match *self {
@@ -79,7 +85,7 @@ pub struct Patch {
     pub axis_u: [f64; 3],
     pub axis_v: [f64; 3],
     pub half_extents_m: [f64; 2],
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Motion::is_static")]
     pub motion: Motion,
 }
 
@@ -187,7 +193,7 @@ impl Patch {
     }
 
     pub fn is_static(&self) -> bool {
-        matches!(self.motion, Motion::Static)
+        self.motion.is_static()
     }
 
     /// The patch where its motion has taken it at time `t`.
@@ -264,9 +270,9 @@ impl Scene {
                 let face_centre = centre + axes[face] * (sign * half_size_m[face]);
                 let patch = Patch::new(
                     &format!("{name}.{}{label}", if sign > 0.0 { '+' } else { '-' }),
-                    face_centre.into(),
-                    axes[a].into(),
-                    axes[b].into(),
+                    round_nanometre(face_centre.into()),
+                    round_nanometre(axes[a].into()),
+                    round_nanometre(axes[b].into()),
                     [half_size_m[a], half_size_m[b]],
                 )
                 .with_motion(motion);
@@ -299,6 +305,11 @@ impl Scene {
             })
             .collect()
     }
+}
+
+/// Drops binary noise (1.2000000000000002, 6e-17) so scenario files read cleanly.
+fn round_nanometre(values: [f64; 3]) -> [f64; 3] {
+    values.map(|v| (v * 1e9).round() / 1e9)
 }
 
 /// Scene prepared for many casts: static patches placed once, moving ones placed per beam.
