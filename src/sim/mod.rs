@@ -37,19 +37,21 @@ impl Scenario {
 
 #[derive(Debug, Clone, PartialEq)]
 pub enum SimEvent {
-    /// A complete revolution, emitted when its last step has been measured.
+    /// A complete revolution; `t` is when its last revolution step has passed (`t0` + one scan
+    /// period), which is when the device would send it.
     Scan {
         scan: Scan,
+        t: f64,
     },
     Imu(ImuSample),
     Truth(TruthSample),
 }
 
 impl SimEvent {
-    /// When the event becomes available: scans at `t0 + scan period`, samples at their time.
-    pub fn time(&self, simulator: &Simulator) -> f64 {
+    /// When the event becomes available; events stream in order of this time.
+    pub fn time(&self) -> f64 {
         match self {
-            Self::Scan { scan } => scan.t0 + simulator.scanners[scan.sensor].geometry.scan_period(),
+            Self::Scan { t, .. } => *t,
             Self::Imu(sample) => sample.time(),
             Self::Truth(truth) => truth.t,
         }
@@ -170,8 +172,7 @@ impl Simulator {
             sensor,
             t0,
             &self.trajectory,
-            &self.scene,
-            &self.cast_scene,
+            &mut self.cast_scene,
             &mut self.scan_rngs[sensor],
             hits,
         )
@@ -198,15 +199,21 @@ impl Simulator {
             Imu,
             Scanner(usize),
         }
-        let mut candidates = vec![(self.cursor.truth as f64 / self.truth_rate_hz, Source::Truth)];
-        if let Some(imu) = &self.imu {
-            candidates.push(((self.cursor.imu + 1) as f64 * imu.period(), Source::Imu));
-        }
-        for (sensor, scanner) in self.scanners.iter().enumerate() {
+        let truth = (self.cursor.truth as f64 / self.truth_rate_hz, Source::Truth);
+        let imu = self
+            .imu
+            .as_ref()
+            .map(|imu| ((self.cursor.imu + 1) as f64 * imu.period(), Source::Imu));
+        let scans = (0..self.scanners.len()).map(|sensor| {
             let t0 = self.scan_t0(sensor, self.cursor.scans[sensor]);
-            candidates.push((t0 + scanner.geometry.scan_period(), Source::Scanner(sensor)));
-        }
-        let (time, source) = candidates.into_iter().min_by(|a, b| a.0.total_cmp(&b.0))?;
+            let done = t0 + self.scanners[sensor].geometry.scan_period();
+            (done, Source::Scanner(sensor))
+        });
+        // The first of equal times wins, which gives the documented tie order.
+        let (time, source) = std::iter::once(truth)
+            .chain(imu)
+            .chain(scans)
+            .reduce(|best, next| if next.0 < best.0 { next } else { best })?;
         if time > self.duration_s {
             return None;
         }
@@ -229,6 +236,7 @@ impl Simulator {
                 self.cursor.scans[sensor] += 1;
                 SimEvent::Scan {
                     scan: self.scan(sensor, t0),
+                    t: time,
                 }
             }
         })

@@ -103,13 +103,23 @@ pub struct PlacedPatch {
 impl PlacedPatch {
     /// Distance along the unit `dir` from `origin` to the patch, if the beam hits it.
     pub fn intersect(&self, origin: &Vector3<f64>, dir: &Vector3<f64>) -> Option<f64> {
+        self.intersect_before(origin, dir, f64::INFINITY)
+    }
+
+    /// Like [`Self::intersect`], but only hits nearer than `limit` (cheap rejection first).
+    fn intersect_before(
+        &self,
+        origin: &Vector3<f64>,
+        dir: &Vector3<f64>,
+        limit: f64,
+    ) -> Option<f64> {
         let denom = self.normal.dot(dir);
         if denom.abs() < 1e-12 {
             return None;
         }
         let to_centre = self.centre - origin;
         let s = self.normal.dot(&to_centre) / denom;
-        if s <= 0.0 {
+        if s <= 0.0 || s >= limit {
             return None;
         }
         let offset = dir * s - to_centre;
@@ -198,35 +208,38 @@ impl Patch {
 
     /// The patch where its motion has taken it at time `t`.
     pub fn at(&self, t: f64) -> PlacedPatch {
-        let rest = self.rest();
-        match self.motion {
-            Motion::Static => rest,
-            Motion::Rotate {
-                pivot_m,
-                axis,
-                angle_deg,
-            } => {
-                let rotation = UnitQuaternion::from_axis_angle(
-                    &Unit::new_normalize(Vector3::from(axis)),
-                    angle_deg.value(t).to_radians(),
-                );
-                let pivot = Vector3::from(pivot_m);
-                PlacedPatch {
-                    centre: pivot + rotation * (rest.centre - pivot),
-                    u: rotation * rest.u,
-                    v: rotation * rest.v,
-                    normal: rotation * rest.normal,
-                    ..rest
-                }
+        place(&self.rest(), &self.motion, t)
+    }
+}
+
+fn place(rest: &PlacedPatch, motion: &Motion, t: f64) -> PlacedPatch {
+    match *motion {
+        Motion::Static => *rest,
+        Motion::Rotate {
+            pivot_m,
+            axis,
+            angle_deg,
+        } => {
+            let rotation = UnitQuaternion::from_axis_angle(
+                &Unit::new_normalize(Vector3::from(axis)),
+                angle_deg.value(t).to_radians(),
+            );
+            let pivot = Vector3::from(pivot_m);
+            PlacedPatch {
+                centre: pivot + rotation * (rest.centre - pivot),
+                u: rotation * rest.u,
+                v: rotation * rest.v,
+                normal: rotation * rest.normal,
+                ..*rest
             }
-            Motion::Translate {
-                direction,
-                distance_m,
-            } => PlacedPatch {
-                centre: rest.centre + Vector3::from(direction).normalize() * distance_m.value(t),
-                ..rest
-            },
         }
+        Motion::Translate {
+            direction,
+            distance_m,
+        } => PlacedPatch {
+            centre: rest.centre + Vector3::from(direction).normalize() * distance_m.value(t),
+            ..*rest
+        },
     }
 }
 
@@ -312,10 +325,35 @@ fn round_nanometre(values: [f64; 3]) -> [f64; 3] {
     values.map(|v| (v * 1e9).round() / 1e9)
 }
 
+/// A moving patch with its placement cached by the value of its motion profile, so patches at
+/// rest (a closed door, a parked board) cost no more than static ones.
+struct MovingPatch {
+    index: usize,
+    rest: PlacedPatch,
+    motion: Motion,
+    cached_value: f64,
+    placed: PlacedPatch,
+}
+
+impl MovingPatch {
+    fn at(&mut self, t: f64) -> &PlacedPatch {
+        let value = match self.motion {
+            Motion::Static => 0.0,
+            Motion::Rotate { angle_deg, .. } => angle_deg.value(t),
+            Motion::Translate { distance_m, .. } => distance_m.value(t),
+        };
+        if value != self.cached_value {
+            self.cached_value = value;
+            self.placed = place(&self.rest, &self.motion, t);
+        }
+        &self.placed
+    }
+}
+
 /// Scene prepared for many casts: static patches placed once, moving ones placed per beam.
 pub(crate) struct CastScene {
     static_patches: Vec<(usize, PlacedPatch)>,
-    moving: Vec<usize>,
+    moving: Vec<MovingPatch>,
 }
 
 impl CastScene {
@@ -323,10 +361,17 @@ impl CastScene {
         let mut static_patches = Vec::new();
         let mut moving = Vec::new();
         for (index, patch) in scene.patches.iter().enumerate() {
+            let rest = patch.rest();
             if patch.is_static() {
-                static_patches.push((index, patch.rest()));
+                static_patches.push((index, rest));
             } else {
-                moving.push(index);
+                moving.push(MovingPatch {
+                    index,
+                    rest,
+                    motion: patch.motion,
+                    cached_value: 0.0,
+                    placed: rest,
+                });
             }
         }
         Self {
@@ -335,23 +380,41 @@ impl CastScene {
         }
     }
 
-    /// Nearest hit along the beam at time `t`: (range, patch index).
+    /// Nearest hit along the beam at time `t`: (range, patch index). `hint` carries the static
+    /// patch the previous beam hit from one call to the next: trying it first makes every
+    /// other patch fail the cheap "farther than the nearest hit" test.
     pub(crate) fn cast(
-        &self,
-        scene: &Scene,
+        &mut self,
         t: f64,
         origin: &Vector3<f64>,
         dir: &Vector3<f64>,
+        hint: &mut Option<usize>,
     ) -> Option<(f64, usize)> {
-        let statics = self
-            .static_patches
-            .iter()
-            .filter_map(|(index, placed)| Some((placed.intersect(origin, dir)?, *index)));
-        let movers = self
-            .moving
-            .iter()
-            .filter_map(|&index| Some((scene.patches[index].at(t).intersect(origin, dir)?, index)));
-        statics.chain(movers).min_by(|a, b| a.0.total_cmp(&b.0))
+        let mut nearest: Option<(f64, usize)> = None;
+        let mut nearest_static = None;
+        let mut limit = f64::INFINITY;
+        let order = hint.iter().copied().chain(0..self.static_patches.len());
+        for (position, slot) in order.enumerate() {
+            if position > 0 && Some(slot) == *hint {
+                continue;
+            }
+            let (index, placed) = &self.static_patches[slot];
+            if let Some(range) = placed.intersect_before(origin, dir, limit) {
+                limit = range;
+                nearest = Some((range, *index));
+                nearest_static = Some(slot);
+            }
+        }
+        for moving in &mut self.moving {
+            let index = moving.index;
+            if let Some(range) = moving.at(t).intersect_before(origin, dir, limit) {
+                limit = range;
+                nearest = Some((range, index));
+                nearest_static = None;
+            }
+        }
+        *hint = nearest_static.or(*hint);
+        nearest
     }
 }
 
@@ -446,14 +509,15 @@ mod tests {
             [0.0, 0.0, 1.0],
             [0.2, 0.2],
         ));
-        let cast = CastScene::new(&scene);
-        let hit = cast
-            .cast(&scene, 0.0, &Vector3::zeros(), &Vector3::x())
-            .unwrap();
-        assert_eq!(hit.1, 1);
+        let mut cast = CastScene::new(&scene);
+        // A hint at the far patch must not stop the near one from winning.
+        let mut hint = Some(0);
+        let hit = cast.cast(0.0, &Vector3::zeros(), &Vector3::x(), &mut hint);
+        assert_eq!(hit.unwrap().1, 1);
+        assert_eq!(hint, Some(1));
         let beside = Vector3::new(5.0, 1.0, 0.0).normalize();
         assert_eq!(
-            cast.cast(&scene, 0.0, &Vector3::zeros(), &beside)
+            cast.cast(0.0, &Vector3::zeros(), &beside, &mut Some(1))
                 .unwrap()
                 .1,
             0
