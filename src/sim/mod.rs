@@ -93,15 +93,17 @@ pub struct Simulator {
 }
 
 impl Simulator {
-    /// `scenario` must be valid (every constructor of `Scenario` validates; call
-    /// [`Scenario::validate`] after editing one by hand).
-    pub fn new(scenario: &Scenario) -> Self {
+    /// A simulator at t = 0 with the scenario's own seed; fails if the scenario (perhaps edited
+    /// by hand) is invalid.
+    pub fn new(scenario: &Scenario) -> Result<Self, ScenarioError> {
         Self::with_seed(scenario, scenario.seed)
     }
 
-    pub fn with_seed(scenario: &Scenario, seed: u64) -> Self {
+    /// Same, with another seed (Monte Carlo runs).
+    pub fn with_seed(scenario: &Scenario, seed: u64) -> Result<Self, ScenarioError> {
+        scenario.validate()?;
         let scanners: Vec<SimScanner> = scenario.scanners.iter().map(SimScanner::new).collect();
-        Self {
+        Ok(Self {
             scene: scenario.scene.clone(),
             trajectory: scenario.trajectory.clone(),
             scan_rngs: (0..scanners.len() as u64)
@@ -119,7 +121,7 @@ impl Simulator {
                 ..Cursor::default()
             },
             scanners,
-        }
+        })
     }
 
     pub fn duration_s(&self) -> f64 {

@@ -44,7 +44,7 @@ fn still() -> Trajectory {
 
 #[test]
 fn level_beams_hit_the_expected_walls_at_exact_ranges() {
-    let mut sim = Simulator::new(&room(still()));
+    let mut sim = Simulator::new(&room(still())).unwrap();
     let (scan, hits) = sim.scan_labelled(0, 0.0);
     let g = ScannerGeometry::UTM_30LX;
     assert_eq!(scan.ranges_m.len(), 1081);
@@ -75,7 +75,7 @@ fn mount_pitch_and_offset_are_applied() {
     let mut scenario = room(still());
     scenario.scanners[0].mount_rpy_deg = [0.0, 10.0, 0.0];
     scenario.scanners[0].mount_translation_m = [0.5, 0.0, 0.0];
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let scan = sim.scan(0, 0.0);
     let expected = 2.5 / 10f64.to_radians().cos();
     assert!((scan.ranges_m[540] - expected).abs() <= 0.0005);
@@ -87,12 +87,12 @@ fn beams_beyond_the_scene_report_the_device_no_return_code() {
     scenario.scene.patches.truncate(1);
     let mut urg = scenario.clone();
     urg.scanners[0].model = ScannerModel::Urg04lx;
-    let utm_scan = Simulator::new(&scenario).scan(0, 0.0);
+    let utm_scan = Simulator::new(&scenario).unwrap().scan(0, 0.0);
     assert_eq!(
         utm_scan.ranges_m[0], 0.001,
         "UTM code 1: no object in range"
     );
-    let urg_scan = Simulator::new(&urg).scan(0, 0.0);
+    let urg_scan = Simulator::new(&urg).unwrap().scan(0, 0.0);
     assert_eq!(urg_scan.ranges_m[0], 0.0, "URG code 0");
     assert_eq!(urg_scan.first_step, 44);
     assert_eq!(urg_scan.ranges_m.len(), 682);
@@ -101,7 +101,7 @@ fn beams_beyond_the_scene_report_the_device_no_return_code() {
 #[test]
 fn readings_lie_on_the_true_planes() {
     let scenario = Scenario::builtin("hallway-flight").unwrap().without_noise();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     for t0 in [0.0, 15.0, 23.1] {
         for sensor in 0..2 {
             let (scan, hits) = sim.scan_labelled(sensor, t0);
@@ -146,7 +146,7 @@ fn each_beam_sees_the_wall_from_the_pose_at_its_own_time() {
         [0.0, 0.0, 1.0],
         [100.0, 10.0],
     )];
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let t0 = 2.0;
     let scan = sim.scan(0, t0);
     let g = sim.scanners[0].geometry;
@@ -177,7 +177,7 @@ fn integrating_ideal_imu_increments_reproduces_the_truth() {
     let imu = scenario.imu.as_mut().unwrap();
     imu.mount_rpy_deg = [180.0, 0.0, 90.0];
     let mount = imu.mount_rotation();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let (start, end) = (10.0, 16.0);
     let truth0 = sim.truth_at(start);
     let mut q = truth0.q * mount;
@@ -202,7 +202,7 @@ fn integrating_ideal_imu_increments_reproduces_the_truth() {
         last_t = t;
     }
     assert!((last_t - end).abs() < 1e-9);
-    let truth = Simulator::new(&scenario).truth_at(end);
+    let truth = Simulator::new(&scenario).unwrap().truth_at(end);
     let attitude_error = (truth.q * mount).angle_to(&q);
     assert!(attitude_error < 1e-9, "{attitude_error}");
     assert!((truth.v - v).norm() < 1e-9, "{}", (truth.v - v).norm());
@@ -224,9 +224,10 @@ fn ideal_rate_output_is_the_truth_in_the_imu_frame() {
     imu.output = ImuOutput::Rate;
     imu.mount_rpy_deg = [0.0, 90.0, 0.0];
     let mount = imu.mount_rotation();
-    let sim = Simulator::new(&scenario);
+    let sim = Simulator::new(&scenario).unwrap();
     let h = 1e-5;
     let rates: Vec<ImuSample> = Simulator::new(&scenario)
+        .unwrap()
         .events()
         .filter_map(|e| match e {
             SimEvent::Imu(s) if s.time() > 12.0 => Some(s),
@@ -261,7 +262,7 @@ fn still_imu(output: ImuOutput, gyro: TriadErrors, accel: TriadErrors) -> Simula
         gyro,
         accel,
     });
-    Simulator::new(&scenario)
+    Simulator::new(&scenario).unwrap()
 }
 
 fn imu_samples(mut sim: Simulator) -> Vec<ImuSample> {
@@ -368,7 +369,7 @@ fn bias_random_walk_grows_with_the_square_root_of_time() {
             gyro: walk,
             accel: TriadErrors::NONE,
         });
-        let samples = imu_samples(Simulator::with_seed(&scenario, seed));
+        let samples = imu_samples(Simulator::with_seed(&scenario, seed).unwrap());
         let ImuSample::Rate { gyro, .. } = samples.last().unwrap() else {
             unreachable!()
         };
@@ -384,8 +385,10 @@ fn bias_random_walk_grows_with_the_square_root_of_time() {
 fn range_noise_has_the_configured_sigma_and_no_bias() {
     let mut scenario = room(still());
     scenario.scanners[0].range_sigma_m = 0.01;
-    let mut noisy = Simulator::new(&scenario);
-    let exact = Simulator::new(&scenario.clone().without_noise()).scan(0, 0.0);
+    let mut noisy = Simulator::new(&scenario).unwrap();
+    let exact = Simulator::new(&scenario.clone().without_noise())
+        .unwrap()
+        .scan(0, 0.0);
     let mut errors = Vec::new();
     for k in 0..20 {
         let scan = noisy.scan(0, f64::from(k) * 0.025);
@@ -410,7 +413,7 @@ fn range_noise_has_the_configured_sigma_and_no_bias() {
 fn dropouts_happen_at_the_configured_rate_with_the_device_code() {
     let mut scenario = room(still());
     scenario.scanners[0].dropout_probability = 0.05;
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let mut dropped = 0;
     for k in 0..10 {
         dropped += sim
@@ -428,10 +431,19 @@ fn dropouts_happen_at_the_configured_rate_with_the_device_code() {
 #[test]
 fn same_seed_same_events_other_seed_other_noise() {
     let scenario = Scenario::builtin("hallway-flight").unwrap();
-    let first: Vec<SimEvent> = Simulator::new(&scenario).events().take(3000).collect();
-    let second: Vec<SimEvent> = Simulator::new(&scenario).events().take(3000).collect();
+    let first: Vec<SimEvent> = Simulator::new(&scenario)
+        .unwrap()
+        .events()
+        .take(3000)
+        .collect();
+    let second: Vec<SimEvent> = Simulator::new(&scenario)
+        .unwrap()
+        .events()
+        .take(3000)
+        .collect();
     assert_eq!(format!("{first:?}"), format!("{second:?}"));
     let other: Vec<SimEvent> = Simulator::with_seed(&scenario, 99)
+        .unwrap()
         .events()
         .take(3000)
         .collect();
@@ -443,7 +455,7 @@ fn same_seed_same_events_other_seed_other_noise() {
 fn events_stream_in_time_order_until_the_duration() {
     let mut scenario = Scenario::builtin("hallway-flight").unwrap();
     scenario.duration_s = 2.0;
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let mut times = Vec::new();
     let mut counts = [0usize; 3];
     for event in sim.events() {
@@ -481,7 +493,7 @@ fn planes_seen(sim: &mut Simulator, t0: f64, min_points: usize) -> Vec<usize> {
 #[test]
 fn paper_sim_gives_four_planes_of_about_fifty_points_per_line() {
     let scenario = Scenario::builtin("paper-sim").unwrap();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     for t0 in [0.0, 1.0] {
         for sensor in 0..2 {
             let (_, hits) = sim.scan_labelled(sensor, t0);
@@ -494,7 +506,7 @@ fn paper_sim_gives_four_planes_of_about_fifty_points_per_line() {
             }
         }
     }
-    let events: Vec<SimEvent> = Simulator::new(&scenario).events().collect();
+    let events: Vec<SimEvent> = Simulator::new(&scenario).unwrap().events().collect();
     let scans: Vec<f64> = events
         .iter()
         .filter_map(|e| match e {
@@ -509,14 +521,17 @@ fn paper_sim_gives_four_planes_of_about_fifty_points_per_line() {
 
 #[test]
 fn paper_bias_experiments_move_plane_two_only() {
-    let plain = Simulator::new(&Scenario::paper_sim(PaperBias::None)).true_planes_in_body(1.0);
-    let shifted =
-        Simulator::new(&Scenario::paper_sim(PaperBias::Translated)).true_planes_in_body(1.0);
+    let plain = Simulator::new(&Scenario::paper_sim(PaperBias::None))
+        .unwrap()
+        .true_planes_in_body(1.0);
+    let shifted = Simulator::new(&Scenario::paper_sim(PaperBias::Translated))
+        .unwrap()
+        .true_planes_in_body(1.0);
     assert!((shifted[1].distance - plain[1].distance - 0.1).abs() < 1e-12);
     for i in [0, 2, 3] {
         assert_eq!(shifted[i], plain[i]);
     }
-    let turned = Simulator::new(&Scenario::paper_sim(PaperBias::Rotated));
+    let turned = Simulator::new(&Scenario::paper_sim(PaperBias::Rotated)).unwrap();
     let (before, after) = (
         turned.true_planes_in_body(0.0),
         turned.true_planes_in_body(1.0),
@@ -531,7 +546,7 @@ fn paper_bias_experiments_move_plane_two_only() {
 #[test]
 fn a_study_can_move_a_plane_between_epochs() {
     let scenario = Scenario::builtin("paper-sim").unwrap().without_noise();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let (before, hits) = sim.scan_labelled(0, 0.0);
     let centre = sim.scene.patches[1].centre_m;
     sim.scene.patches[1].centre_m = (Vector3::from(centre) * 1.1).into();
@@ -550,7 +565,7 @@ fn a_study_can_move_a_plane_between_epochs() {
 #[test]
 fn office_door_offers_walls_ceiling_and_a_swinging_door() {
     let scenario = Scenario::builtin("office-door").unwrap();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let door = sim
         .scene
         .patches
@@ -574,7 +589,7 @@ fn office_door_offers_walls_ceiling_and_a_swinging_door() {
 #[test]
 fn hallway_hover_offers_four_to_nine_planes_at_every_epoch() {
     let scenario = Scenario::builtin("hallway-hover").unwrap();
-    let mut sim = Simulator::new(&scenario);
+    let mut sim = Simulator::new(&scenario).unwrap();
     let board = sim
         .scene
         .patches
@@ -589,4 +604,15 @@ fn hallway_hover_offers_four_to_nine_planes_at_every_epoch() {
     // The board is only within reach of the steeper scanner near the end of each approach.
     assert!(planes_seen(&mut sim, 309.5, 10).contains(&board));
     assert!(!planes_seen(&mut sim, 299.0, 10).contains(&board));
+}
+
+#[test]
+fn a_hand_edited_invalid_scenario_is_refused_not_panicked_on() {
+    let mut scenario = Scenario::builtin("paper-sim").unwrap();
+    scenario.scanners[1].geometry = None;
+    let err = Simulator::new(&scenario).err().unwrap().to_string();
+    assert_eq!(
+        err,
+        "scenario \"paper-sim\" is invalid: scanner \"raised\": model custom needs a [scanners.geometry] table"
+    );
 }
