@@ -199,6 +199,10 @@ impl ScannerConfig {
             "range_sigma_m must be zero or positive"
         } else if !(0.0..=1.0).contains(&self.dropout_probability) {
             "dropout_probability must be within 0..1"
+        } else if self.skip > 9 {
+            "skip must be 0..=9 (the SCIP scan interval)"
+        } else if !self.phase_s.is_finite() {
+            "phase_s must be a finite number of seconds"
         } else {
             return None;
         };

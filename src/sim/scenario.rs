@@ -256,4 +256,24 @@ mod tests {
             assert_eq!(from_file, Scenario::builtin(name).unwrap(), "{name}");
         }
     }
+
+    proptest::proptest! {
+        #[test]
+        fn arbitrary_text_is_refused_cleanly(text in "\\PC{0,200}") {
+            if let Err(err) = Scenario::from_toml_str(&text) {
+                proptest::prop_assert!(!err.to_string().contains('\n'));
+            }
+        }
+
+        #[test]
+        fn damaged_scenario_files_are_refused_cleanly(cut in 0usize..2000, len in 1usize..40) {
+            let text = Scenario::builtin("hallway-hover").unwrap().to_toml().unwrap();
+            let start = cut.min(text.len() - 1);
+            let end = (start + len).min(text.len());
+            let damaged = format!("{}{}", &text[..start], &text[end..]);
+            if let Err(err) = Scenario::from_toml_str(&damaged) {
+                proptest::prop_assert!(!err.to_string().contains('\n'), "{}", err);
+            }
+        }
+    }
 }
