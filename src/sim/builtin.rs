@@ -56,7 +56,7 @@ fn paper_plane(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64
     )
 }
 
-pub fn paper_sim(bias: PaperBias) -> Scenario {
+pub(crate) fn paper_sim(bias: PaperBias) -> Scenario {
     let mut scene = Scene {
         patches: vec![
             paper_plane("plane-1", -65.0, 3.0, 20.0, 25.0),
@@ -148,7 +148,7 @@ fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
 /// 1.2 m above the floor, scan planes raised 35 and 55 deg; the door in the right-hand wall, beside
 /// the scanners (x = -0.45 .. 0.45), swings into the room 0 -> 90 -> 0 deg five times (period 9 s
 /// from t = 2 s).
-pub fn office_door() -> Scenario {
+pub(crate) fn office_door() -> Scenario {
     let (ceiling, floor, door_top) = (-1.4, 1.2, -0.8);
     let door_hinge = [0.45, 2.79];
     let door = Patch::new(
@@ -296,7 +296,7 @@ fn gentle_hover(start_s: f64) -> Oscillation {
 /// UST-20LX pitched 30 deg further down (both 4 Hz: SCIP scan interval 9), IMU at 400 Hz. The
 /// door opens and closes 15 times (19 s each from t = 5 s); from t = 300 s a 60 x 90 cm board
 /// approaches from 5 m to 1 m in front and departs, 10 times (19 s each).
-pub fn hallway_hover() -> Scenario {
+pub(crate) fn hallway_hover() -> Scenario {
     let mut scene = hallway(
         -6.0,
         9.0,
@@ -344,7 +344,7 @@ pub fn hallway_hover() -> Scenario {
 /// A flight down a 26 m hallway: still for 10 s, 12 m forward in 12 s (peak 1.9 m/s), a 180 deg
 /// turn in 4 s, 12 m back, then 5 s of hover; -10 deg pitch and gentle hover motions throughout.
 /// The door swings 4 times (10 s each from t = 8 s).
-pub fn hallway_flight() -> Scenario {
+pub(crate) fn hallway_flight() -> Scenario {
     Scenario {
         name: "hallway-flight".into(),
         seed: 4,

@@ -80,8 +80,8 @@ pub struct Simulator {
     /// The world; change it between `scan` calls to stage a study (move or turn one patch).
     pub scene: Scene,
     pub trajectory: Trajectory,
-    pub scanners: Vec<SimScanner>,
-    pub imu: Option<ImuConfig>,
+    scanners: Vec<SimScanner>,
+    imu: Option<ImuConfig>,
     truth_rate_hz: f64,
     duration_s: f64,
     cast_scene: CastScene,
@@ -122,6 +122,15 @@ impl Simulator {
             },
             scanners,
         })
+    }
+
+    /// The scanners in scenario order (index = `Scan::sensor`): geometry, mount, range sigma.
+    pub fn scanners(&self) -> &[SimScanner] {
+        &self.scanners
+    }
+
+    pub fn imu(&self) -> Option<&ImuConfig> {
+        self.imu.as_ref()
     }
 
     pub fn duration_s(&self) -> f64 {
@@ -183,7 +192,7 @@ impl Simulator {
     /// Step-0 time of the `index`-th reported revolution of scanner `sensor`.
     fn scan_t0(&self, sensor: usize, index: u64) -> f64 {
         let scanner = &self.scanners[sensor];
-        scanner.config.phase_s + index as f64 * scanner.config.report_period(&scanner.geometry)
+        scanner.config().phase_s + index as f64 * scanner.config().report_period(scanner.geometry())
     }
 
     /// All remaining events in time order. (Not `impl Iterator for Simulator`: its `scan` adapter
@@ -208,7 +217,7 @@ impl Simulator {
             .map(|imu| ((self.cursor.imu + 1) as f64 * imu.period(), Source::Imu));
         let scans = (0..self.scanners.len()).map(|sensor| {
             let t0 = self.scan_t0(sensor, self.cursor.scans[sensor]);
-            let done = t0 + self.scanners[sensor].geometry.scan_period();
+            let done = t0 + self.scanners[sensor].geometry().scan_period();
             (done, Source::Scanner(sensor))
         });
         // The first of equal times wins, which gives the documented tie order.

@@ -212,10 +212,11 @@ impl ScannerConfig {
 
 /// A validated scanner ready to cast.
 #[derive(Debug, Clone)]
+/// Read-only: its beam directions are derived from the mount once, at construction.
 pub struct SimScanner {
-    pub config: ScannerConfig,
-    pub geometry: ScannerGeometry,
-    pub mount: Mount,
+    config: ScannerConfig,
+    geometry: ScannerGeometry,
+    mount: Mount,
     first_step: u32,
     /// Beam direction of each reported step in the body frame.
     directions_body: Vec<Vector3<f64>>,
@@ -239,6 +240,18 @@ impl SimScanner {
             first_step: first,
             directions_body,
         }
+    }
+
+    pub fn config(&self) -> &ScannerConfig {
+        &self.config
+    }
+
+    pub fn geometry(&self) -> &ScannerGeometry {
+        &self.geometry
+    }
+
+    pub fn mount(&self) -> &Mount {
+        &self.mount
     }
 
     pub fn range_sigma_m(&self) -> f64 {

@@ -105,14 +105,14 @@ fn readings_lie_on_the_true_planes() {
     for t0 in [0.0, 15.0, 23.1] {
         for sensor in 0..2 {
             let (scan, hits) = sim.scan_labelled(sensor, t0);
-            let scanner = sim.scanners[sensor].clone();
+            let scanner = sim.scanners()[sensor].clone();
             let mut checked = 0;
             for (i, hit) in hits.iter().enumerate() {
                 let Some(patch) = hit else { continue };
-                let t = scan.time_of(i, &scanner.geometry);
+                let t = scan.time_of(i, scanner.geometry());
                 let point_sensor =
-                    scanner.geometry.step_direction(scan.step_of(i)) * scan.ranges_m[i];
-                let point_body = scanner.mount.to_body(&point_sensor);
+                    scanner.geometry().step_direction(scan.step_of(i)) * scan.ranges_m[i];
+                let point_body = scanner.mount().to_body(&point_sensor);
                 let plane = sim.true_planes_in_body(t)[*patch];
                 assert!(
                     (plane.normal.dot(&point_body) - plane.distance).abs() < 1e-3,
@@ -149,7 +149,7 @@ fn each_beam_sees_the_wall_from_the_pose_at_its_own_time() {
     let mut sim = Simulator::new(&scenario).unwrap();
     let t0 = 2.0;
     let scan = sim.scan(0, t0);
-    let g = sim.scanners[0].geometry;
+    let g = *sim.scanners()[0].geometry();
     let mut largest_skew: f64 = 0.0;
     for (i, &range) in scan.ranges_m.iter().enumerate() {
         let psi = g.step_azimuth(scan.step_of(i));
@@ -477,7 +477,7 @@ fn events_stream_in_time_order_until_the_duration() {
 /// Patches seen by at least `min_points` beams of every scanner at the epoch starting at `t0`.
 fn planes_seen(sim: &mut Simulator, t0: f64, min_points: usize) -> Vec<usize> {
     let mut per_scanner = Vec::new();
-    for sensor in 0..sim.scanners.len() {
+    for sensor in 0..sim.scanners().len() {
         let (_, hits) = sim.scan_labelled(sensor, t0);
         let mut counts = vec![0usize; sim.scene.patches.len()];
         for patch in hits.into_iter().flatten() {
