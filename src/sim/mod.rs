@@ -4,6 +4,16 @@
 //! `sensors::Mount`). Gravity is the constant standard value [`GRAVITY`] along NED +z, and the
 //! Earth does not rotate: a still IMU measures zero rate and a specific force of -g along NED z.
 //! Events stream in time order, so a 500 s scenario never sits in memory.
+//!
+//! Conventions the consumers must match:
+//! - IMU samples are in the IMU frame (NED-flagged); the IMU sits at the body origin. `Delta`
+//!   samples are exact: `dq = q(t - dt)^-1 q(t)` and `v(t) = v(t - dt) + C(t - dt) dv + g dt`,
+//!   with `C` the IMU-to-NED rotation at the start of the interval and `g = [0, 0, GRAVITY]`.
+//!   Errors: `(1 + scale) * truth + bias (+ bias * dt for increments) + white noise`.
+//! - Scans: `Scan::t0` is the time of step 0; every beam leaves from the body pose at its own
+//!   time; ranges are the device's value / 1000 (1 mm steps), with its codes for no return,
+//!   too near and dropouts (see [`ScannerModel`]).
+//! - True planes are Hesse planes in the body frame: `normal . x = distance`, `distance >= 0`.
 
 mod builtin;
 mod imu;
