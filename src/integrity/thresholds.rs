@@ -10,9 +10,9 @@
 use statrs::function::erf::erfc_inv;
 use statrs::function::gamma::{gamma_ur, ln_gamma};
 
-/// Global thresholds are precomputed up to this many degrees of freedom (2M - 3 for 65 planes);
+/// Thresholds are precomputed up to this many degrees of freedom or tests (2M - 3 for 65 planes);
 /// larger parity spaces are computed on demand.
-const CACHED_DOF: usize = 128;
+const CACHED: usize = 128;
 
 /// The thresholds of one scope, precomputed so that a test costs no quantile evaluation.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,15 +26,23 @@ pub struct Thresholds {
     /// MDB size stays inside it with probability at least `1 - Pmd`.
     pub noise_quantile: f64,
     global: Vec<f64>,
+    /// Per-plane thresholds for one and two rows, by number of tests.
+    per_plane: [Vec<f64>; 2],
 }
 
 impl Thresholds {
     pub fn new(false_alarm: f64, missed_detection: f64) -> Self {
-        let global = (1..=CACHED_DOF)
+        let global = (1..=CACHED)
             .map(|dof| chi_square_upper_quantile(dof, false_alarm / 2.0))
             .collect();
+        let per_plane = [1, 2].map(|dof| {
+            (1..=CACHED)
+                .map(|tests| plane_threshold(false_alarm, dof, tests))
+                .collect()
+        });
         Self {
             false_alarm,
+            per_plane,
             missed_detection_quantile: normal_upper_quantile(missed_detection),
             noise_quantile: normal_upper_quantile(missed_detection / 2.0),
             global,
@@ -52,9 +60,17 @@ impl Thresholds {
     /// Threshold (eq 39's gamma) on one plane's normalised residual, the square root of its
     /// chi-square statistic with `plane_dof` testable rows, when `tests` planes are tested.
     pub fn per_plane(&self, plane_dof: usize, tests: usize) -> f64 {
-        let alpha = self.false_alarm / (2.0 * tests.max(1) as f64);
-        chi_square_upper_quantile(plane_dof, alpha).sqrt()
+        let cached = self.per_plane.get(plane_dof.wrapping_sub(1));
+        match cached.and_then(|by_tests| by_tests.get(tests.wrapping_sub(1))) {
+            Some(&threshold) => threshold,
+            None => plane_threshold(self.false_alarm, plane_dof, tests),
+        }
     }
+}
+
+fn plane_threshold(false_alarm: f64, plane_dof: usize, tests: usize) -> f64 {
+    let alpha = false_alarm / (2.0 * tests.max(1) as f64);
+    chi_square_upper_quantile(plane_dof, alpha).sqrt()
 }
 
 /// `z` with `P(N(0,1) > z) = alpha`.
