@@ -9,9 +9,10 @@
 //! of `G` for those rows.
 //!
 //! Per plane the test is Baarda's w-test generalised to the plane's `d` rows (1 for
-//! displacement, 2 tangent rows for rotation): with `N_k = G_k^T G_k` and `u_k = G_k^T p`, the
-//! statistic `T_k = u_k^T N_k^-1 u_k` is chi-square with `d` degrees of freedom when the plane is
-//! fault free and noncentral with `b^T N_k b` when it carries bias `b`. It is the most powerful
+//! displacement, 2 tangent rows for rotation; a plane with more rows is refused): with
+//! `N_k = G_k^T G_k` and `u_k = G_k^T p`, the statistic `T_k = u_k^T N_k^-1 u_k` is chi-square
+//! with `d` degrees of freedom when the plane is fault free and noncentral with `b^T N_k b` when
+//! it carries bias `b`. It is the most powerful
 //! test for a fault confined to that plane, and `sqrt(T_k)` is the plane's normalised residual
 //! (signed when `d = 1`: then it is `r_k / sigma(r_k)`, residual over its predicted sigma).
 //! The threshold `gamma_k` (eq 39) comes from the false-alarm budget, and a bias is detected with
@@ -19,6 +20,12 @@
 //! bias (eq 40) is that noncentrality over the weakest direction, `(gamma_k + z) / sqrt(lambda_min
 //! (N_k))`, in the row units (metres for displacement; for rotation the norm of the bias on the
 //! two orthonormal tangent rows, i.e. the angle in radians by which the plane's normal turned).
+//! A direction of `N_k` with (almost) no redundancy cannot be tested: the plane's MDB, slope and
+//! so the protection levels are then infinite, which is the honest answer (e.g. rotation with
+//! two planes, or the only plane that observes an axis).
+//!
+//! The paper's eq 39-40 index the parity components by plane, which only holds for diagonal
+//! cases; the w-test above is the per-plane statistic those equations intend.
 
 use super::protection::{protection_levels, ProtectionLevels};
 use super::thresholds::Thresholds;
@@ -36,6 +43,8 @@ const UNTESTABLE_REDUNDANCY: f64 = 1e-9;
 pub enum Untestable {
     #[error("{planes} planes, fewer than the {minimum} needed to test")]
     TooFewPlanes { planes: usize, minimum: usize },
+    #[error("{rows} rows for 3 unknowns leave nothing to test")]
+    NoRedundancy { rows: usize },
     #[error("whitened geometry condition number {condition:.3e} is above the limit {limit:.3e}")]
     IllConditioned { condition: f64, limit: f64 },
     #[error("measurement covariance is not positive definite")]
@@ -72,7 +81,7 @@ impl ParitySpace {
     }
 }
 
-/// One plane's test, in the units of its rows.
+/// One plane's test, in the units of its rows. Infinite values serialise as JSON `null`.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PlaneTest {
     pub plane: usize,
@@ -200,10 +209,7 @@ pub fn parity_space(system: &LinearSystem, max_condition: f64) -> Result<ParityS
     check_shape(system)?;
     let m = system.rows();
     if m <= 3 {
-        return Err(Untestable::TooFewPlanes {
-            planes: group_rows(system)?.len(),
-            minimum: 0,
-        });
+        return Err(Untestable::NoRedundancy { rows: m });
     }
     let cholesky = system
         .r

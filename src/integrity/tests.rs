@@ -143,10 +143,18 @@ fn testable_normals(
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
     #[test]
-    fn parity_basis_is_orthonormal_and_blind_to_the_state(seed in any::<u64>(), planes in 4usize..12, rotational in any::<bool>()) {
+    fn parity_basis_is_orthonormal_and_blind_to_the_state(
+        seed in any::<u64>(),
+        planes in 4usize..12,
+        rotational in any::<bool>(),
+    ) {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let n = normals(&mut rng, planes);
-        let system = if rotational { rotation(&n, &mut rng, None) } else { displacement(&n, &mut rng, &[]) };
+        let system = if rotational {
+            rotation(&n, &mut rng, None)
+        } else {
+            displacement(&n, &mut rng, &[])
+        };
         let Ok(space) = parity_space(&system, 1e6) else { return Ok(()) };
         let m = system.rows();
         let v = space.basis();
@@ -159,7 +167,8 @@ proptest! {
         prop_assert!((cov_p - DMatrix::identity(m - 3, m - 3)).norm() < 1e-9);
         // |p|^2 is the weighted residual sum of squares.
         let solution = system.clone().solve().unwrap();
-        let weighted = solution.residuals.dot(&system.r.clone().cholesky().unwrap().solve(&solution.residuals));
+        let r_chol = system.r.clone().cholesky().unwrap();
+        let weighted = solution.residuals.dot(&r_chol.solve(&solution.residuals));
         prop_assert!((space.parity.norm_squared() - weighted).abs() < 1e-8 * (1.0 + weighted));
     }
 }
@@ -644,4 +653,48 @@ fn an_invalid_configuration_is_refused() {
         IntegrityMonitor::new(config).unwrap_err().to_string(),
         "integrity.false_alarm_probability = -0.1 is outside (0, 1): use e.g. 1e-3"
     );
+}
+
+#[test]
+fn a_turned_plane_is_excluded_from_the_displacement_too() {
+    let monitor = monitor(1e-3, 1e-3);
+    let mut rng = ChaCha8Rng::seed_from_u64(91);
+    let n = testable_normals(&mut rng, 6, &monitor);
+    let rot = rotation(&n, &mut rng, Some((5, 4f64.to_radians())));
+    let report = check_epoch(&monitor, &rot, &displacement(&n, &mut rng, &[]));
+    assert_eq!(report.status, IntegrityStatus::Excluded { planes: vec![5] });
+    assert_eq!(report.displacement.test.as_ref().unwrap().planes.len(), 5);
+    assert_eq!(report.displacement.status, report.status);
+}
+
+#[test]
+fn two_planes_test_rotation_but_cannot_protect_it() {
+    let monitor = monitor(1e-3, 1e-3);
+    let mut rng = ChaCha8Rng::seed_from_u64(92);
+    let n = [Vector3::x(), Vector3::new(0.0, 0.6, 0.8)];
+    let test = monitor
+        .test(SolveKind::Rotation, &rotation(&n, &mut rng, None))
+        .unwrap();
+    assert_eq!(test.redundancy, 1);
+    // One parity dimension: each plane has one testable direction of its two.
+    assert!(test.planes.iter().all(|plane| plane.dof == 1));
+    assert!(test.planes.iter().all(|plane| plane.mdb.is_infinite()));
+    assert!(test
+        .protection
+        .level
+        .iter()
+        .all(|level| level.is_infinite()));
+    let turned = rotation(&n, &mut rng, Some((0, 0.2)));
+    let report = monitor.check_solve(
+        SolveKind::Rotation,
+        turned.clone().solve(),
+        &mut resolver(&turned),
+    );
+    // The turn shows in the one parity dimension (or hides in the untestable one); either way
+    // one redundant row cannot say which plane turned.
+    assert!(matches!(
+        report.status,
+        IntegrityStatus::DetectedNotIsolable | IntegrityStatus::Ok
+    ));
+    assert!(report.excluded.is_empty());
 }
