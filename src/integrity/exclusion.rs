@@ -105,9 +105,10 @@ impl IntegrityMonitor {
         resolve: &mut Resolver<'_>,
     ) -> SolveReport {
         let mut tracks = [self.track(&self.alone, kind, first, resolve)];
-        let (status, excluded) = self.exclude(&self.alone, &mut tracks);
+        // With one solve the loop's verdict is the solve's own.
+        let (_, excluded) = self.exclude(&self.alone, &mut tracks);
         let [track] = tracks;
-        report(track, &status, excluded)
+        report(track, excluded)
     }
 
     /// Detect and exclude on an epoch: a plane excluded from either solve leaves both, and the
@@ -136,8 +137,8 @@ impl IntegrityMonitor {
         let (status, excluded) = self.exclude(&self.paired, &mut tracks);
         let [rotation, displacement] = tracks;
         EpochReport {
-            rotation: report(rotation, &status, excluded.clone()),
-            displacement: report(displacement, &status, excluded.clone()),
+            rotation: report(rotation, excluded.clone()),
+            displacement: report(displacement, excluded.clone()),
             status,
             excluded,
         }
@@ -265,12 +266,13 @@ fn isolable(test: &SolveTest, candidate: usize) -> bool {
     test.redundancy >= plane.rows + largest_other
 }
 
-fn report(track: Track<'_, '_>, epoch: &IntegrityStatus, excluded: Vec<usize>) -> SolveReport {
-    let status = match (&track.test, epoch) {
-        (Err(_), _) => IntegrityStatus::UnderDetermined,
-        (Ok(test), _) if test.detected => IntegrityStatus::DetectedNotIsolable,
-        (Ok(_), _) if excluded.is_empty() => IntegrityStatus::Ok,
-        (Ok(_), _) => IntegrityStatus::Excluded {
+/// The solve's own verdict on its last tested state.
+fn report(track: Track<'_, '_>, excluded: Vec<usize>) -> SolveReport {
+    let status = match &track.test {
+        Err(_) => IntegrityStatus::UnderDetermined,
+        Ok(test) if test.detected => IntegrityStatus::DetectedNotIsolable,
+        Ok(_) if excluded.is_empty() => IntegrityStatus::Ok,
+        Ok(_) => IntegrityStatus::Excluded {
             planes: excluded.clone(),
         },
     };
