@@ -111,7 +111,10 @@ pub fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
     let eigen = SymmetricEigen::new(*information);
     let largest = eigen.eigenvalues.amax();
     (0..3)
-        .filter(|&i| !(eigen.eigenvalues[i] > OBSERVABILITY_TOLERANCE * largest))
+        .filter(|&i| {
+            let value = eigen.eigenvalues[i];
+            value.is_nan() || value <= OBSERVABILITY_TOLERANCE * largest
+        })
         .map(|i| eigen.eigenvectors.column(i).into_owned())
         .collect()
 }
@@ -159,7 +162,8 @@ mod tests {
 
     #[test]
     fn two_walls_leave_the_vertical_unobservable() {
-        let normals = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.7071, 0.7071, 0.0]];
+        let diagonal = std::f64::consts::FRAC_1_SQRT_2;
+        let normals = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [diagonal, diagonal, 0.0]];
         let err = system(&normals, &[0.0; 3]).solve().unwrap_err();
         let SolveError::UnderDetermined { unobservable } = err else {
             panic!("{err}")

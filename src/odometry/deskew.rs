@@ -1,0 +1,173 @@
+//! Deskew (paper section 2): every valid reading of a scan becomes a point in the body frame at
+//! the epoch's reference time, using the body's motion between the beam's time and that time.
+//! Invalid readings are counted by reason and never reach a fit.
+
+use crate::sensors::{Mount, Scan, ScannerGeometry};
+use nalgebra::{Isometry3, Point3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Body pose at a beam's time relative to the body at the epoch's reference time:
+/// `p_ref = pose_at(t) * p_body(t)`. Identity for a stationary body.
+pub type PoseAt<'a> = &'a dyn Fn(f64) -> Isometry3<f64>;
+
+/// One valid reading, ready for line extraction (2-D) and plane fitting (3-D).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Beam {
+    /// Point in the scanner's own plane (x front, y right) as measured, not deskewed: the line
+    /// extractor segments in this plane, where the breakpoint geometry of Borges and Aldon holds.
+    pub planar: Vector2<f64>,
+    /// Point in the body frame at the reference time (deskewed).
+    pub body: Vector3<f64>,
+    /// Unit beam direction in the body frame; its angle to a plane's normal scales how much of
+    /// the ranging noise moves the point off the plane.
+    pub direction: Vector3<f64>,
+    /// Beam azimuth in the scanner frame, radians.
+    pub azimuth: f64,
+    /// Measured range, metres.
+    pub range: f64,
+}
+
+/// Readings dropped from one scan, by reason.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct DroppedReadings {
+    /// NaN readings.
+    pub not_a_number: u32,
+    /// Exactly zero: no echo.
+    pub zero: u32,
+    /// Below DMIN (or negative): a device error code, not a distance.
+    pub error_code: u32,
+    /// Above DMAX (including +infinity).
+    pub out_of_range: u32,
+}
+
+impl DroppedReadings {
+    pub fn total(&self) -> u32 {
+        self.not_a_number + self.zero + self.error_code + self.out_of_range
+    }
+
+    /// Counts a reading as dropped if it is not a measurement; returns whether it was kept.
+    fn admit(&mut self, range_m: f64, geometry: &ScannerGeometry) -> bool {
+        let counter = if range_m.is_nan() {
+            &mut self.not_a_number
+        } else if range_m == 0.0 {
+            &mut self.zero
+        } else if range_m < geometry.dmin_m {
+            &mut self.error_code
+        } else if range_m > geometry.dmax_m {
+            &mut self.out_of_range
+        } else {
+            return true;
+        };
+        *counter += 1;
+        false
+    }
+}
+
+/// Fills `out` (cleared first) with the valid beams of `scan`, deskewed to the reference time.
+pub fn deskew(
+    scan: &Scan,
+    geometry: &ScannerGeometry,
+    mount: &Mount,
+    pose_at: PoseAt<'_>,
+    out: &mut Vec<Beam>,
+) -> DroppedReadings {
+    out.clear();
+    let mut dropped = DroppedReadings::default();
+    for (index, &range) in scan.ranges_m.iter().enumerate() {
+        if !dropped.admit(range, geometry) {
+            continue;
+        }
+        let step = scan.step_of(index);
+        let azimuth = geometry.step_azimuth(step);
+        let in_scanner = geometry.step_direction(step);
+        let direction = mount.rotation * in_scanner;
+        let at_beam_time = mount.translation + direction * range;
+        let pose = pose_at(scan.time_of(index, geometry));
+        let body = pose.transform_point(&Point3::from(at_beam_time)).coords;
+        out.push(Beam {
+            planar: in_scanner.xy() * range,
+            body,
+            direction,
+            azimuth,
+            range,
+        });
+    }
+    dropped
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn scan(ranges_m: Vec<f64>) -> Scan {
+        Scan {
+            sensor: 0,
+            t0: 10.0,
+            first_step: 0,
+            cluster: 1,
+            ranges_m,
+        }
+    }
+
+    #[test]
+    fn invalid_readings_are_dropped_and_counted_by_reason() {
+        let g = ScannerGeometry::UTM_30LX;
+        let ranges = vec![
+            f64::NAN,
+            0.0,
+            0.005,
+            -1.0,
+            61.0,
+            f64::INFINITY,
+            2.0,
+            g.dmin_m,
+            g.dmax_m,
+        ];
+        let mut beams = Vec::new();
+        let dropped = deskew(
+            &scan(ranges),
+            &g,
+            &Mount::identity(),
+            &|_| Isometry3::identity(),
+            &mut beams,
+        );
+        assert_eq!(
+            dropped,
+            DroppedReadings {
+                not_a_number: 1,
+                zero: 1,
+                error_code: 2,
+                out_of_range: 2
+            }
+        );
+        assert_eq!(dropped.total(), 6);
+        assert_eq!(beams.len(), 3);
+        assert!(beams.iter().all(|b| b.body.iter().all(|c| c.is_finite())));
+    }
+
+    #[test]
+    fn mount_places_the_beam_and_motion_moves_it_to_the_reference_time() {
+        let g = ScannerGeometry::UTM_30LX;
+        let mount = Mount::from_rpy_deg([0.0, 0.0, 90.0], [0.1, 0.0, -0.2]);
+        let mut ranges = vec![0.0; 541];
+        ranges[540] = 3.0; // front step
+        let s = scan(ranges);
+        let t_beam = s.time_of(540, &g);
+        let velocity = Vector3::new(1.0, -2.0, 0.5);
+        // Body moved by velocity * (t - t_ref) since the reference time t_ref = 10.
+        let pose_at = |t: f64| {
+            Isometry3::from_parts(
+                Translation3::from(velocity * (t - 10.0)),
+                UnitQuaternion::identity(),
+            )
+        };
+        let mut beams = Vec::new();
+        deskew(&s, &g, &mount, &pose_at, &mut beams);
+        assert_eq!(beams.len(), 1);
+        let expected = Vector3::new(0.1, 3.0, -0.2) + velocity * (t_beam - 10.0);
+        assert!((beams[0].body - expected).norm() < 1e-12);
+        assert!((beams[0].planar - Vector2::new(3.0, 0.0)).norm() < 1e-12);
+        assert!((beams[0].direction - Vector3::y()).norm() < 1e-12);
+    }
+}
