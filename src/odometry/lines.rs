@@ -57,8 +57,9 @@ impl LineExtractor {
         out.clear();
         self.pieces.clear();
         let mut cluster_start = 0;
+        let mut breakpoint = Breakpoint::new(parameters);
         for n in 1..=beams.len() {
-            if n == beams.len() || is_breakpoint(&beams[n - 1], &beams[n], parameters) {
+            if n == beams.len() || breakpoint.between(&beams[n - 1], &beams[n]) {
                 self.split(beams, cluster_start, n, parameters);
                 cluster_start = n;
             }
@@ -113,15 +114,37 @@ impl LineExtractor {
 }
 
 /// Borges and Aldon's adaptive breakpoint: a jump longer than a surface seen at incidence lambda
-/// could produce, plus the noise allowance.
-fn is_breakpoint(previous: &Beam, next: &Beam, parameters: &LineParameters) -> bool {
-    let step = (next.azimuth - previous.azimuth).abs();
-    let lambda = parameters.breakpoint_lambda_rad;
-    if step >= lambda {
-        return true;
+/// could produce, plus the noise allowance. The angular factor is cached, as consecutive beams
+/// are nearly always one step apart.
+struct Breakpoint {
+    lambda: f64,
+    noise_m: f64,
+    step: f64,
+    factor: f64,
+}
+
+impl Breakpoint {
+    fn new(parameters: &LineParameters) -> Self {
+        Self {
+            lambda: parameters.breakpoint_lambda_rad,
+            noise_m: parameters.breakpoint_noise_m,
+            step: f64::NAN,
+            factor: 0.0,
+        }
     }
-    let limit = previous.range * step.sin() / (lambda - step).sin() + parameters.breakpoint_noise_m;
-    (next.planar - previous.planar).norm() > limit
+
+    fn between(&mut self, previous: &Beam, next: &Beam) -> bool {
+        let step = (next.azimuth - previous.azimuth).abs();
+        if step >= self.lambda {
+            return true;
+        }
+        if self.step.is_nan() || (step - self.step).abs() > 1e-9 * step {
+            self.step = step;
+            self.factor = step.sin() / (self.lambda - step).sin();
+        }
+        let limit = previous.range * self.factor + self.noise_m;
+        (next.planar - previous.planar).norm_squared() > limit * limit
+    }
 }
 
 fn farthest_from_chord(beams: &[Beam], a: usize, b: usize) -> (usize, f64) {
@@ -171,31 +194,39 @@ fn fit_segment(beams: &[Beam], a: usize, b: usize, parameters: &LineParameters) 
     if b - a < parameters.min_points.max(2) {
         return None;
     }
-    let (centroid_2d, direction_2d) = fit_2d(beams, a, b);
+    let points = &beams[a..b];
+    let n = points.len() as f64;
+    let (sum_2d, sum_3d) = points
+        .iter()
+        .fold((Vector2::zeros(), Vector3::zeros()), |(s2, s3), beam| {
+            (s2 + beam.planar, s3 + beam.body)
+        });
+    let (centroid_2d, centroid) = (sum_2d / n, sum_3d / n);
+    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+    let mut scatter = Matrix3::zeros();
+    for beam in points {
+        let d = beam.planar - centroid_2d;
+        sxx += d.x * d.x;
+        syy += d.y * d.y;
+        sxy += d.x * d.y;
+        let d3 = beam.body - centroid;
+        scatter += d3 * d3.transpose();
+    }
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let direction_2d = Vector2::new(angle.cos(), angle.sin());
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
-    for beam in &beams[a..b] {
+    let mut moment = Vector3::zeros();
+    let mut abscissa_spread = 0.0;
+    for beam in points {
         let t = direction_2d.dot(&(beam.planar - centroid_2d));
         low = low.min(t);
         high = high.max(t);
+        moment += (beam.body - centroid) * t;
+        abscissa_spread += t * t;
     }
     let length = high - low;
     if length < parameters.min_length_m {
         return None;
-    }
-    let n = (b - a) as f64;
-    let centroid = beams[a..b]
-        .iter()
-        .fold(Vector3::zeros(), |s, beam| s + beam.body)
-        / n;
-    let mut scatter = Matrix3::zeros();
-    let mut moment = Vector3::zeros();
-    let mut abscissa_spread = 0.0;
-    for beam in &beams[a..b] {
-        let t = direction_2d.dot(&(beam.planar - centroid_2d));
-        let d = beam.body - centroid;
-        scatter += d * d.transpose();
-        moment += d * t;
-        abscissa_spread += t * t;
     }
     Some(Segment {
         first: a,

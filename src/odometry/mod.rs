@@ -21,7 +21,7 @@ pub mod uncertainty;
 
 use crate::estimation::{Solution, SolveError};
 use crate::sensors::{Mount, Scan, ScannerGeometry};
-use deskew::{deskew, Beam, DroppedReadings, PoseAt};
+use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
@@ -314,6 +314,7 @@ impl OdometryEpoch {
 pub struct Odometer {
     config: OdometryConfig,
     scanners: [ScannerSetup; 2],
+    deskewers: [Deskewer; 2],
     beams: [Vec<Beam>; 2],
     segments: [Vec<Segment>; 2],
     lines: LineExtractor,
@@ -338,6 +339,7 @@ impl Odometer {
         Ok(Self {
             config,
             scanners,
+            deskewers: Default::default(),
             beams: Default::default(),
             segments: Default::default(),
             lines: LineExtractor::default(),
@@ -375,7 +377,7 @@ impl Odometer {
         out.t_ref = t_ref;
         for (k, scan) in scans.into_iter().enumerate() {
             let setup = &self.scanners[k];
-            out.dropped[k] = deskew(
+            out.dropped[k] = self.deskewers[k].deskew(
                 scan,
                 &setup.geometry,
                 &setup.mount,
