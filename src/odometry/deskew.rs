@@ -3,7 +3,7 @@
 //! Invalid readings are counted by reason and never reach a fit.
 
 use crate::sensors::{Mount, Scan, ScannerGeometry};
-use nalgebra::{Isometry3, Matrix3x2, Point3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix2x3, Matrix3x2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Body pose at a beam's time relative to the body at the epoch's reference time:
@@ -13,8 +13,9 @@ pub type PoseAt<'a> = &'a dyn Fn(f64) -> Isometry3<f64>;
 /// One valid reading, ready for line extraction (2-D) and plane fitting (3-D).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Beam {
-    /// Point in the scanner's own plane (x front, y right) as measured, not deskewed: the line
-    /// extractor segments in this plane, where the breakpoint geometry of Borges and Aldon holds.
+    /// The deskewed point in the scanner's own plane (x front, y right), i.e. `body` seen from
+    /// the scanner's mount: the line extractor segments here, where straight 3-D lines stay
+    /// straight whatever the motion during the scan.
     pub planar: Vector2<f64>,
     /// Point in the body frame at the reference time (deskewed).
     pub body: Vector3<f64>,
@@ -82,6 +83,8 @@ struct BeamGeometry {
 pub struct Deskewer {
     layout: Option<(ScannerGeometry, Mount, u32, u32)>,
     table: Vec<BeamGeometry>,
+    /// First two rows of the inverse mount rotation: body directions to scanner-plane x, y.
+    to_scanner_plane: Matrix2x3<f64>,
 }
 
 impl Deskewer {
@@ -104,10 +107,11 @@ impl Deskewer {
                 continue;
             }
             let beam = self.table[index];
-            let planar = beam.in_scanner * range;
+            let measured = beam.in_scanner * range;
+            let body = motion.map_to_reference(index, &measured, scan, geometry, mount, pose_at);
             out.push(Beam {
-                planar,
-                body: motion.map_to_reference(index, &planar, scan, geometry, mount, pose_at),
+                planar: self.to_scanner_plane * (body - mount.translation),
+                body,
                 direction: beam.direction,
                 azimuth: beam.azimuth,
                 range,
@@ -122,6 +126,8 @@ impl Deskewer {
             return;
         }
         self.layout = layout;
+        let inverse = mount.rotation.inverse().to_rotation_matrix();
+        self.to_scanner_plane = inverse.matrix().fixed_rows::<2>(0).into_owned();
         self.table.clear();
         self.table.extend((0..scan.ranges_m.len()).map(|index| {
             let step = scan.step_of(index);
@@ -275,7 +281,8 @@ mod tests {
         assert_eq!(beams.len(), 1);
         let expected = Vector3::new(0.1, 3.0, -0.2) + velocity * (t_beam - 10.0);
         assert!((beams[0].body - expected).norm() < 1e-12);
-        assert!((beams[0].planar - Vector2::new(3.0, 0.0)).norm() < 1e-12);
+        let seen_from_mount = mount.rotation.inverse() * (expected - mount.translation);
+        assert!((beams[0].planar - seen_from_mount.xy()).norm() < 1e-12);
         assert!((beams[0].direction - Vector3::y()).norm() < 1e-12);
     }
 }
