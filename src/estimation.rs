@@ -112,8 +112,8 @@ pub fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
     let largest = eigen.eigenvalues.amax();
     (0..3)
         .filter(|&i| {
-            let value = eigen.eigenvalues[i];
-            value.is_nan() || value <= OBSERVABILITY_TOLERANCE * largest
+            let threshold = OBSERVABILITY_TOLERANCE * largest;
+            eigen.eigenvalues[i].partial_cmp(&threshold) != Some(std::cmp::Ordering::Greater)
         })
         .map(|i| eigen.eigenvectors.column(i).into_owned())
         .collect()
