@@ -206,7 +206,8 @@ impl OdometryConfig {
         }
     }
 
-    fn line_parameters(&self, range_sigma_m: f64) -> LineParameters {
+    /// Line-extraction parameters for a scanner with this ranging sigma.
+    pub fn line_parameters(&self, range_sigma_m: f64) -> LineParameters {
         LineParameters {
             breakpoint_lambda_rad: self.breakpoint_lambda_deg.to_radians(),
             breakpoint_noise_m: self.breakpoint_noise_sigmas * range_sigma_m,
@@ -216,7 +217,7 @@ impl OdometryConfig {
         }
     }
 
-    fn plane_parameters(&self) -> PlaneParameters {
+    pub fn plane_parameters(&self) -> PlaneParameters {
         PlaneParameters {
             min_separation_m: self.min_line_separation_m,
             coplanarity_gate_sigmas: self.coplanarity_gate_sigmas,
@@ -226,7 +227,7 @@ impl OdometryConfig {
         }
     }
 
-    fn rotation_parameters(&self) -> RotationParameters {
+    pub fn rotation_parameters(&self) -> RotationParameters {
         RotationParameters {
             max_iterations: self.rotation_max_iterations,
             tolerance_rad: self.rotation_tolerance_rad,
@@ -350,6 +351,16 @@ impl Odometer {
 
     pub fn config(&self) -> &OdometryConfig {
         &self.config
+    }
+
+    /// Beams of scanner `k` from the latest extraction (for inspection and plotting).
+    pub fn beams(&self, k: usize) -> &[Beam] {
+        &self.beams[k]
+    }
+
+    /// Lines of scanner `k` from the latest extraction, indexing `beams(k)`.
+    pub fn lines(&self, k: usize) -> &[Segment] {
+        &self.segments[k]
     }
 
     fn range_sigma(&self, scanner: usize) -> f64 {
