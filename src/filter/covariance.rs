@@ -10,11 +10,14 @@
 //! is applied block-wise on the fixed 27x27 augmented covariance: the clone columns are
 //! carried along, which is what keeps the cross-covariance with the cloned pose right.
 
-use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use std::ops::AddAssign;
+
+use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
 
 use super::config::FilterConfig;
 use super::state::{
-    Covariance, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, GYRO_BIAS, GYRO_SCALE, POS, VEL,
+    Covariance, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS,
+    VEL,
 };
 use super::strapdown::Corrected;
 
@@ -52,29 +55,65 @@ impl ErrorDynamics {
         }
     }
 
-    /// `A M` for a 27-column `M`, scaled by `dt`.
-    fn apply(&self, m: &Covariance, dt: f64) -> Covariance {
-        let mut out = Covariance::zeros();
-        let rows = |at: usize| m.fixed_rows::<3>(at);
-        out.fixed_rows_mut::<3>(POS).copy_from(&(rows(VEL) * dt));
+    /// `dt A M` for the first `C` columns of `M`: only the 9 rows of position, velocity and
+    /// attitude are non-zero, so only they are returned.
+    fn apply<const C: usize>(&self, m: &Covariance, dt: f64) -> SMatrix<f64, 9, C> {
+        let rows = |at: usize| m.fixed_view::<3, C>(at, 0);
+        let mut out = SMatrix::<f64, 9, C>::zeros();
+        out.fixed_rows_mut::<3>(POS).copy_from(&rows(VEL));
         out.fixed_rows_mut::<3>(VEL).copy_from(
-            &((self.vel_att * rows(ATT)
+            &(self.vel_att * rows(ATT)
                 + self.vel_accel_bias * rows(ACCEL_BIAS)
-                + self.vel_accel_scale * rows(ACCEL_SCALE))
-                * dt),
+                + self.vel_accel_scale * rows(ACCEL_SCALE)),
         );
         out.fixed_rows_mut::<3>(ATT).copy_from(
-            &((self.att_gyro_bias * rows(GYRO_BIAS) + self.att_gyro_scale * rows(GYRO_SCALE)) * dt),
+            &(self.att_gyro_bias * rows(GYRO_BIAS) + self.att_gyro_scale * rows(GYRO_SCALE)),
         );
-        out
+        out * dt
     }
 
-    /// `P <- F P F^T + Q dt` in place.
-    pub fn propagate(&self, p: &mut Covariance, noise: &ProcessNoise, dt: f64) {
-        let fp = *p + self.apply(p, dt);
-        *p = fp + self.apply(&fp.transpose(), dt).transpose();
+    /// `dt M A^T` for the first `C` rows of `M`: only columns 0..9 are non-zero.
+    fn apply_transposed<const C: usize>(&self, m: &Covariance, dt: f64) -> SMatrix<f64, C, 9> {
+        let columns = |at: usize| m.fixed_view::<C, 3>(0, at);
+        let mut out = SMatrix::<f64, C, 9>::zeros();
+        out.fixed_columns_mut::<3>(POS).copy_from(&columns(VEL));
+        out.fixed_columns_mut::<3>(VEL).copy_from(
+            &(columns(ATT) * self.vel_att.transpose()
+                + columns(ACCEL_BIAS) * self.vel_accel_bias.transpose()
+                + columns(ACCEL_SCALE) * self.vel_accel_scale.transpose()),
+        );
+        out.fixed_columns_mut::<3>(ATT).copy_from(
+            &(columns(GYRO_BIAS) * self.att_gyro_bias.transpose()
+                + columns(GYRO_SCALE) * self.att_gyro_scale.transpose()),
+        );
+        out * dt
+    }
+
+    /// `P <- F P F^T + Q dt` in place. With `with_clone` false the clone rows and columns
+    /// (stale until the next clone overwrites them) are skipped.
+    pub fn propagate(&self, p: &mut Covariance, noise: &ProcessNoise, dt: f64, with_clone: bool) {
+        if with_clone {
+            self.propagate_first::<AUGMENTED>(p, dt);
+        } else {
+            self.propagate_first::<ERROR_STATES>(p, dt);
+        }
         noise.add_to(p, dt);
-        symmetrise(p);
+    }
+
+    /// `P + dt A P` touches rows 0..9 only, and multiplying by `F^T` on the right then touches
+    /// columns 0..9 only, so only those are re-symmetrised.
+    fn propagate_first<const C: usize>(&self, p: &mut Covariance, dt: f64) {
+        let left = self.apply::<C>(p, dt);
+        p.fixed_view_mut::<9, C>(POS, 0).add_assign(&left);
+        let right = self.apply_transposed::<C>(p, dt);
+        p.fixed_view_mut::<C, 9>(0, POS).add_assign(&right);
+        for i in 0..9 {
+            for j in i + 1..C {
+                let mean = 0.5 * (p[(i, j)] + p[(j, i)]);
+                p[(i, j)] = mean;
+                p[(j, i)] = mean;
+            }
+        }
     }
 }
 
@@ -119,9 +158,7 @@ pub fn symmetrise(p: &mut Covariance) {
 
 #[cfg(test)]
 mod tests {
-    use super::super::state::ERROR_STATES;
     use super::*;
-    use nalgebra::SMatrix;
 
     fn dense_a(d: &ErrorDynamics) -> SMatrix<f64, AUGMENTED, AUGMENTED> {
         let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::zeros();
@@ -156,7 +193,7 @@ mod tests {
         let f = Covariance::identity() + dense_a(&d) * inc.dt;
         let mut p = p0;
         let config = FilterConfig::default();
-        d.propagate(&mut p, &ProcessNoise::new(&config), inc.dt);
+        d.propagate(&mut p, &ProcessNoise::new(&config), inc.dt, true);
         let mut expected = f * p0 * f.transpose();
         ProcessNoise::new(&config).add_to(&mut expected, inc.dt);
         assert!((p - expected).norm() < 1e-12 * expected.norm());

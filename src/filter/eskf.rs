@@ -15,7 +15,7 @@ use super::state::{
     GYRO_BIAS, GYRO_SCALE, POS, VEL,
 };
 use super::strapdown::{mechanise, ImuIncrement};
-use super::update::{self, Stacked};
+use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
@@ -151,6 +151,7 @@ pub struct Eskf {
     imu_to_body: UnitQuaternion<f64>,
     gravity: Vector3<f64>,
     noise: ProcessNoise,
+    gate: GateThresholds,
     phase: FilterPhase,
     state: NominalState,
     covariance: Covariance,
@@ -179,6 +180,7 @@ impl Eskf {
             imu_to_body: config.imu_to_body(),
             gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
             noise: ProcessNoise::new(&config),
+            gate: GateThresholds::new(config.gate_probability),
             phase: FilterPhase::Aligning,
             state: NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros()),
             covariance,
@@ -296,14 +298,25 @@ impl Eskf {
             &self.state.gyro_scale,
             &self.state.accel_scale,
         );
-        let mut covariance = self.covariance;
-        dynamics.propagate(&mut covariance, &self.noise, corrected.dt);
-        if !next.is_finite() || !covariance.iter().all(|x| x.is_finite()) {
+        // In place: a non-finite result is discarded by the reset anyway.
+        dynamics.propagate(
+            &mut self.covariance,
+            &self.noise,
+            corrected.dt,
+            self.clone.is_some(),
+        );
+        // Propagation changes only rows and columns 0..9 and the diagonal.
+        let covariance_finite = self
+            .covariance
+            .fixed_rows::<9>(POS)
+            .iter()
+            .all(|x| x.is_finite())
+            && self.covariance.diagonal().iter().all(|x| x.is_finite());
+        if !next.is_finite() || !covariance_finite {
             self.reset(ResetReason::NonFinitePropagation);
             return Some(ResetReason::NonFinitePropagation);
         }
         self.state = next;
-        self.covariance = covariance;
         self.dynamics = Some(dynamics);
         self.angular_rate = corrected.dtheta / corrected.dt;
         self.record_pose(increment.t);
@@ -324,7 +337,12 @@ impl Eskf {
         let step = seconds / steps;
         for _ in 0..steps as usize {
             let dynamics = self.dynamics.unwrap_or_else(|| self.rest_dynamics());
-            dynamics.propagate(&mut self.covariance, &self.noise, step);
+            dynamics.propagate(
+                &mut self.covariance,
+                &self.noise,
+                step,
+                self.clone.is_some(),
+            );
         }
         self.state.p += self.state.v * seconds;
         self.zero_motion = None;
@@ -478,7 +496,7 @@ impl Eskf {
             return Err(UpdateError::NonFinite);
         }
         let mut covariance = self.covariance;
-        let gated = update::apply(&mut covariance, rows, self.config.gate_probability)
+        let gated = update::apply(&mut covariance, rows, &self.gate)
             .map_err(|_| UpdateError::BadCovariance)?;
         let report = UpdateReport {
             kind,

@@ -143,18 +143,31 @@ pub struct Gated {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NotPositiveDefinite;
 
+/// NIS thresholds of the gate for 0..=6 observable rows, computed once per filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GateThresholds([f64; ROWS + 1]);
+
+impl GateThresholds {
+    pub fn new(gate_probability: f64) -> Self {
+        Self(std::array::from_fn(|dof| {
+            chi_square_quantile(gate_probability, dof)
+        }))
+    }
+}
+
 /// Gates on the NIS, then applies `K = P H^T S^-1`, `P <- P - K S K^T` and the ESKF reset of
 /// the attitude block (Sola eq. 287, `G = I - [dtheta / 2]x`). Leaves `p` untouched on rejection.
 pub fn apply(
     p: &mut Covariance,
     measurement: &Stacked,
-    gate_probability: f64,
+    gate: &GateThresholds,
 ) -> Result<Gated, NotPositiveDefinite> {
-    let s = measurement.innovation_covariance(p);
+    let pht = *p * measurement.jacobian.transpose();
+    let s = measurement.jacobian * pht + measurement.noise;
     let cholesky = s.cholesky().ok_or(NotPositiveDefinite)?;
     let y = measurement.innovation;
     let nis = cholesky.solve(&y).dot(&y);
-    let threshold = chi_square_quantile(gate_probability, measurement.dof);
+    let threshold = gate.0[measurement.dof];
     let mut gated = Gated {
         nis,
         dof: measurement.dof,
@@ -164,7 +177,6 @@ pub fn apply(
     if measurement.dof == 0 || nis > threshold {
         return Ok(gated);
     }
-    let pht = *p * measurement.jacobian.transpose();
     let gain_t = cholesky.solve(&pht.transpose());
     let dx = gain_t.transpose() * y;
     *p -= pht * gain_t;
@@ -216,7 +228,7 @@ mod tests {
             &(Matrix3::identity() * 0.01),
             &along_x,
         );
-        let gated = apply(&mut p, &m, 1.0).unwrap();
+        let gated = apply(&mut p, &m, &GateThresholds::new(1.0)).unwrap();
         let dx = gated.correction.unwrap();
         assert_eq!(gated.dof, 1);
         assert!((dx[0] - 0.5 / 1.01).abs() < 1e-12);
@@ -238,7 +250,7 @@ mod tests {
             &Matrix3::identity(),
             &Observability::full(),
         );
-        let gated = apply(&mut p, &m, 0.999).unwrap();
+        let gated = apply(&mut p, &m, &GateThresholds::new(0.999)).unwrap();
         assert!(gated.correction.is_none());
         assert!((gated.nis - 50.0).abs() < 1e-9);
         assert_eq!(p, Covariance::identity());
