@@ -78,7 +78,8 @@ pub struct FilterConfig {
     pub gate_probability: f64,
     /// `"cloned"` (default) or `"velocity"`.
     pub relative_pose_update: RelativePoseUpdate,
-    /// Largest difference between a measurement's epoch times and the clone / filter times, s.
+    /// Largest difference between a measurement's epoch times and the clone / filter times,
+    /// s; the difference is bridged with the filter's own propagated motion.
     pub epoch_time_tolerance_s: f64,
     /// IMU mount: rotation of the IMU frame into body FRD, `[roll, pitch, yaw]` in degrees,
     /// composed as in DESIGN.md 3. The lever arm is neglected (body origin at the IMU).
@@ -115,7 +116,7 @@ impl Default for FilterConfig {
             max_imu_gap_s: 0.05,
             gate_probability: 0.9999,
             relative_pose_update: RelativePoseUpdate::Cloned,
-            epoch_time_tolerance_s: 0.003,
+            epoch_time_tolerance_s: 0.05,
             imu_mount_rpy_deg: [0.0; 3],
             pose_history_s: 2.0,
             max_imu_rate_hz: 1000.0,

@@ -443,37 +443,48 @@ impl Eskf {
         if !measurement.is_finite() {
             return Err(UpdateError::NonFinite);
         }
-        if (measurement.t - now).abs() > self.config.epoch_time_tolerance_s {
+        let tolerance = self.config.epoch_time_tolerance_s;
+        if (measurement.t - now).abs() > tolerance {
             return Err(UpdateError::TimeMismatch {
                 t: measurement.t,
                 filter_t: now,
             });
         }
+        let current = Pose {
+            t: now,
+            p: self.state.p,
+            q: self.state.q,
+        };
+        let at_ref =
+            self.history
+                .pose_at(measurement.t_ref)
+                .ok_or(UpdateError::OutsideHistory {
+                    t_ref: measurement.t_ref,
+                })?;
+        let at_t = match self.history.pose_at(measurement.t) {
+            Some(pose) => pose,
+            // Epoch slightly after the newest IMU sample: the last bridge is not available.
+            None => current,
+        };
         let (rows, kind) = match self.config.relative_pose_update {
             RelativePoseUpdate::Cloned => {
-                let reference = self
+                let clone = self
                     .clone
                     .take()
-                    .filter(|c| {
-                        (c.t - measurement.t_ref).abs() <= self.config.epoch_time_tolerance_s
-                    })
+                    .filter(|c| (c.t - measurement.t_ref).abs() <= tolerance)
                     .ok_or(UpdateError::NoClone {
                         t_ref: measurement.t_ref,
                     })?;
+                let bridged = measurement.bridged(&clone, &at_ref, &at_t, &current);
                 (
-                    measurement.cloned_rows(&reference, &self.state),
+                    bridged.cloned_rows(&clone, &self.state),
                     UpdateKind::RelativePoseCloned,
                 )
             }
             RelativePoseUpdate::Velocity => {
-                let reference =
-                    self.history
-                        .pose_at(measurement.t_ref)
-                        .ok_or(UpdateError::OutsideHistory {
-                            t_ref: measurement.t_ref,
-                        })?;
+                let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
                 (
-                    measurement.velocity_rows(&reference, &self.state),
+                    bridged.velocity_rows(&at_ref, &self.state),
                     UpdateKind::RelativePoseVelocity,
                 )
             }

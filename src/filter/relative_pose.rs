@@ -69,6 +69,32 @@ impl RelativePose {
         )
     }
 
+    /// The same measurement re-expressed between `from` (the clone, near `t_ref`) and `to` (the
+    /// filter's current pose, near `t`), bridging the few milliseconds at each end with the
+    /// filter's own propagated motion between `at_ref` (pose at `t_ref`) and `from`, and
+    /// between `at_t` (pose at `t`) and `to`. Over such short bridges the IMU motion is far
+    /// more precise than the odometry, so the covariances are kept as reported.
+    pub fn bridged(&self, from: &Pose, at_ref: &Pose, at_t: &Pose, to: &Pose) -> Self {
+        let (c_front, d_front) = Self::predict(from, at_ref);
+        let (c_back, d_back) = Self::predict(at_t, to);
+        let measured_rotation = match &self.rotation {
+            Some(r) => UnitQuaternion::from_scaled_axis(r.rotation_vector),
+            None => Self::predict(at_ref, at_t).0,
+        };
+        Self {
+            t_ref: from.t,
+            t: to.t,
+            rotation: self.rotation.map(|r| RelativeRotation {
+                rotation_vector: (c_front * measured_rotation * c_back).scaled_axis(),
+                ..r
+            }),
+            translation: self.translation.map(|d| RelativeTranslation {
+                displacement: d_front + c_front * (d.displacement + measured_rotation * d_back),
+                ..d
+            }),
+        }
+    }
+
     /// Measurement rows against the current state and the cloned reference pose.
     pub fn cloned_rows(&self, reference: &Pose, current: &NominalState) -> Stacked {
         let now = Pose {
