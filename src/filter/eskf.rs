@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use super::alignment::{zero_motion_rows, StationaryMeans};
+use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
 use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
@@ -81,6 +81,9 @@ pub struct FilterCounters {
     pub imu_gaps: u64,
     pub rejected_updates: u64,
     pub resets: u64,
+    /// Samples that looked like motion during the stationary start (each restarts the
+    /// alignment, or ends the stationary start early).
+    pub motion_during_start: u64,
 }
 
 /// Which measurement an update report is about.
@@ -270,6 +273,12 @@ impl Eskf {
     }
 
     fn align(&mut self, t: f64, sample: &ImuSample, interval: f64) -> ImuOutcome {
+        if !self.looks_stationary(sample) {
+            self.counters.motion_during_start += 1;
+            self.means = StationaryMeans::default();
+            self.t_start = Some(t);
+            return ImuOutcome::Aligning;
+        }
         let start = *self.t_start.get_or_insert(t);
         self.means.add(sample, interval);
         if t - start < self.config.coarse_alignment_s {
@@ -372,7 +381,24 @@ impl Eskf {
         )
     }
 
+    fn looks_stationary(&self, sample: &ImuSample) -> bool {
+        looks_stationary(
+            sample,
+            self.config.gravity_mps2,
+            self.config.stationary_max_rate,
+            self.config.stationary_max_force_error_mps2,
+        )
+    }
+
+    /// Zero-motion updates once per window; motion ends the stationary start early rather than
+    /// letting a false zero velocity into the state.
     fn stationary_updates(&mut self, t: f64, sample: &ImuSample, interval: f64) {
+        if !self.looks_stationary(sample) {
+            self.counters.motion_during_start += 1;
+            self.zero_motion = None;
+            self.phase = FilterPhase::Navigating;
+            return;
+        }
         let window = self.zero_motion.get_or_insert(ZeroMotionWindow {
             start: t - interval,
             rate_sum: Vector3::zeros(),

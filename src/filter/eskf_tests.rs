@@ -346,9 +346,7 @@ fn monte_carlo_run(seed: u64) -> f64 {
     filter.nees(&trajectory.truth(5.0)).unwrap().value
 }
 
-#[test]
-fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
-    let runs = 25;
+fn check_summed_nees(runs: u64) {
     let total: f64 = (0..runs).map(monte_carlo_run).sum();
     let dof = 9 * runs as usize;
     let (low, high) = (
@@ -359,6 +357,18 @@ fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
         total > low && total < high,
         "summed NEES {total} outside [{low}, {high}] for {dof} dof"
     );
+}
+
+#[test]
+fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
+    check_summed_nees(25);
+}
+
+/// `cargo test --release -p ladar-odometer --lib filter::eskf_tests::nees_of_a_large -- --ignored`
+#[test]
+#[ignore = "large Monte Carlo: run in release"]
+fn nees_of_a_large_monte_carlo_lies_in_its_95_percent_interval() {
+    check_summed_nees(400);
 }
 
 #[test]
@@ -376,4 +386,30 @@ fn epochs_between_imu_samples_are_bridged_with_the_propagated_motion() {
     assert!(report.accepted, "NIS {}", report.nis);
     assert!(report.nis < chi_square_quantile(0.999, 6));
     assert!((filter.estimate().position - trajectory.truth(1.5).p).norm() < 1e-3);
+}
+
+#[test]
+fn motion_during_the_start_restarts_alignment_and_then_ends_the_stationary_start() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::from_euler_angles(0.1, 0.0, 0.0),
+    };
+    let config = FilterConfig {
+        stationary_start_s: 5.0,
+        ..FilterConfig::default()
+    };
+    let mut samples = trajectory.imu_samples(0.0, 4.0, 100.0, false);
+    let bump = |sample: &mut ImuSample| {
+        if let ImuSample::Rate { gyro, .. } = sample {
+            *gyro += Vector3::new(0.0, 0.0, 0.5);
+        }
+    };
+    bump(&mut samples[50]);
+    bump(&mut samples[300]);
+    let mut filter = Eskf::new(config).unwrap();
+    let outcomes: Vec<_> = samples.iter().map(|s| filter.push_imu(s)).collect();
+    // Aligned one second after the bump at 0.5 s, not one second after the start.
+    let aligned_at = outcomes.iter().position(|o| *o == ImuOutcome::Aligned);
+    assert_eq!(aligned_at, Some(150));
+    assert_eq!(filter.counters().motion_during_start, 2);
+    assert_eq!(filter.phase(), FilterPhase::Navigating);
 }
