@@ -19,6 +19,9 @@ use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
+/// Most covariance steps taken to bridge one IMU gap.
+const MAX_GAP_STEPS: f64 = 1000.0;
+
 /// Where the filter is in its start-up.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FilterPhase {
@@ -56,6 +59,8 @@ pub enum DropReason {
     NonMonotonic,
     /// NaN or infinity in the time or the values, or a `Delta` interval that is not positive.
     NonFinite,
+    /// A `Delta` sample claiming an interval longer than `max_imu_gap_s`.
+    BadInterval,
 }
 
 /// Why the filter reset its covariance (and dropped any clone).
@@ -78,6 +83,7 @@ pub enum Degradation {
 pub struct FilterCounters {
     pub non_monotonic: u64,
     pub non_finite: u64,
+    pub bad_interval: u64,
     pub imu_gaps: u64,
     pub rejected_updates: u64,
     pub resets: u64,
@@ -237,6 +243,10 @@ impl Eskf {
                 self.counters.non_monotonic += 1;
                 return ImuOutcome::Dropped(DropReason::NonMonotonic);
             }
+            (_, ImuSample::Delta { dt, .. }) if *dt > self.config.max_imu_gap_s => {
+                self.counters.bad_interval += 1;
+                return ImuOutcome::Dropped(DropReason::BadInterval);
+            }
             (_, ImuSample::Delta { dt, .. }) => *dt,
             (Some(last), ImuSample::Rate { .. }) => t - last,
             (None, ImuSample::Rate { .. }) => 0.0,
@@ -252,8 +262,8 @@ impl Eskf {
             _ => None,
         });
         self.t = Some(t);
-        if since_last.max(interval) > self.config.max_imu_gap_s {
-            return self.bridge_gap(t, since_last.max(interval));
+        if since_last > self.config.max_imu_gap_s {
+            return self.bridge_gap(t, since_last);
         }
         match self.phase {
             FilterPhase::Aligning => self.align(t, sample, interval),
@@ -342,7 +352,10 @@ impl Eskf {
             self.t_start = Some(t);
             return ImuOutcome::Gap { seconds };
         }
-        let steps = (seconds / self.config.max_imu_gap_s).ceil();
+        // Bounded work for any gap: past MAX_GAP_STEPS the steps get longer.
+        let steps = (seconds / self.config.max_imu_gap_s)
+            .ceil()
+            .min(MAX_GAP_STEPS);
         let step = seconds / steps;
         for _ in 0..steps as usize {
             let dynamics = self.dynamics.unwrap_or_else(|| self.rest_dynamics());

@@ -6,7 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::consistency::chi_square_quantile;
-use super::testkit::{Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
+use super::testkit::{self, Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
 use super::*;
 use crate::sensors::ImuSample;
 
@@ -426,4 +426,108 @@ fn motion_during_the_start_restarts_alignment_and_then_ends_the_stationary_start
     assert_eq!(aligned_at, Some(150));
     assert_eq!(filter.counters().motion_during_start, 2);
     assert_eq!(filter.phase(), FilterPhase::Navigating);
+}
+
+mod hostile_input {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn value() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            8 => -20.0..20.0f64,
+            1 => Just(f64::NAN),
+            1 => Just(f64::INFINITY),
+            1 => prop_oneof![Just(1e300), Just(-1e300), Just(0.0)],
+        ]
+    }
+
+    fn vector() -> impl Strategy<Value = Vector3<f64>> {
+        (value(), value(), value()).prop_map(|(x, y, z)| Vector3::new(x, y, z))
+    }
+
+    fn sample() -> impl Strategy<Value = ImuSample> {
+        let time = prop_oneof![9 => 0.001..0.02f64, 1 => -0.05..0.3f64];
+        let rest = time.clone().prop_map(|step| ImuSample::Rate {
+            t: step,
+            gyro: Vector3::zeros(),
+            accel: Vector3::new(0.0, 0.0, -testkit::G),
+        });
+        prop_oneof![
+            6 => rest,
+            2 => (time.clone(), vector(), vector()).prop_map(|(step, gyro, accel)| ImuSample::Rate {
+                t: step,
+                gyro,
+                accel
+            }),
+            2 => (time, value(), vector(), vector()).prop_map(|(step, dt, axis, dv)| {
+                ImuSample::Delta {
+                    t: step,
+                    dt,
+                    dq: UnitQuaternion::from_scaled_axis(axis * 1e-3),
+                    dv,
+                }
+            }),
+        ]
+    }
+
+    /// Sample times are given as steps from the previous one; negative steps go backwards.
+    fn with_running_time(steps: Vec<ImuSample>) -> Vec<ImuSample> {
+        let mut t = 0.0;
+        steps
+            .into_iter()
+            .map(|s| {
+                t += s.time();
+                match s {
+                    ImuSample::Rate { gyro, accel, .. } => ImuSample::Rate { t, gyro, accel },
+                    ImuSample::Delta { dt, dq, dv, .. } => ImuSample::Delta { t, dt, dq, dv },
+                }
+            })
+            .collect()
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn any_imu_stream_and_measurement_leave_a_finite_state(
+            steps in proptest::collection::vec(sample(), 1..120),
+            displacement in vector(),
+            rotation in vector(),
+            variance in value(),
+        ) {
+            let config = FilterConfig {
+                coarse_alignment_s: 0.05,
+                stationary_start_s: 0.5,
+                ..FilterConfig::default()
+            };
+            let mut filter = Eskf::new(config).unwrap();
+            for (k, sample) in with_running_time(steps).iter().enumerate() {
+                filter.push_imu(sample);
+                if k % 10 == 0 {
+                    let t_ref = filter.clone_pose().ok();
+                    if let (Some(t_ref), Some(t)) = (t_ref, filter.time()) {
+                        let measurement = RelativePose {
+                            t_ref,
+                            t,
+                            rotation: Some(RelativeRotation {
+                                rotation_vector: rotation,
+                                covariance: Matrix3::identity() * variance,
+                                observability: Observability::from_unobservable(&[rotation]),
+                            }),
+                            translation: Some(RelativeTranslation {
+                                displacement,
+                                covariance: Matrix3::identity() * variance,
+                                observability: Observability::full(),
+                            }),
+                        };
+                        let _ = filter.update_relative_pose(&measurement);
+                    }
+                }
+                let estimate = filter.estimate();
+                prop_assert!(estimate.position.iter().all(|x| x.is_finite()));
+                prop_assert!(estimate.velocity.iter().all(|x| x.is_finite()));
+                prop_assert!(estimate.attitude.coords.iter().all(|x| x.is_finite()));
+                prop_assert!(filter.covariance().diagonal().iter().all(|x| x.is_finite()));
+            }
+        }
+    }
 }
