@@ -760,11 +760,6 @@ impl Eskf {
     pub fn gyro_bias(&self) -> Vector3<f64> {
         self.state.gyro_bias
     }
-    pub fn cloned_attitude_error_sigma(&self) -> Option<Vector3<f64>> {
-        self.clone.map(|_| {
-            Vector3::from_fn(|i, _| self.covariance[(CLONE_ATT + i, CLONE_ATT + i)].sqrt())
-        })
-    }
 }
 
 fn sample_is_finite(sample: &ImuSample) -> bool {
