@@ -1,0 +1,106 @@
+//! Stationary start: gravity alignment (roll and pitch from the mean specific force, gyro bias
+//! from the mean rate, yaw 0 defining the local frame) and then zero-velocity plus zero-rate
+//! updates (ZUPT / ZARU) until the configured end of the stationary period.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use super::state::{NominalState, GYRO_BIAS, VEL};
+use super::update::{Jacobian3, Observability, Stacked};
+use crate::sensors::ImuSample;
+
+/// Means of the IMU-frame specific force and rate over the alignment window.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct StationaryMeans {
+    force: Vector3<f64>,
+    rate: Vector3<f64>,
+    weight: f64,
+}
+
+impl StationaryMeans {
+    /// Adds one sample, weighted by the time it covers.
+    pub fn add(&mut self, sample: &ImuSample, interval: f64) {
+        let (rate, force) = match *sample {
+            ImuSample::Rate { gyro, accel, .. } => (gyro, accel),
+            ImuSample::Delta { dt, dq, dv, .. } => (dq.scaled_axis() / dt, dv / dt),
+        };
+        self.force += force * interval;
+        self.rate += rate * interval;
+        self.weight += interval;
+    }
+
+    pub fn duration(&self) -> f64 {
+        self.weight
+    }
+
+    pub fn mean_rate(&self) -> Vector3<f64> {
+        self.rate / self.weight
+    }
+
+    /// The state at rest: roll and pitch level the mean specific force (`f = -R^T g` at
+    /// rest), yaw is 0, and the mean rate (which includes the Earth rate) is the gyro bias.
+    pub fn aligned_state(&self, imu_to_body: &UnitQuaternion<f64>) -> NominalState {
+        let f = imu_to_body * (self.force / self.weight);
+        let roll = (-f.y).atan2(-f.z);
+        let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
+        NominalState::at_rest(
+            UnitQuaternion::from_euler_angles(roll, pitch, 0.0),
+            self.mean_rate(),
+        )
+    }
+}
+
+/// Zero velocity and, from the mean gyro output over the interval, zero rate:
+/// `0 - v = dv + n_v` and `mean(w_m) - b_g = db_g + n_w`, `n_w` of variance `N_g^2 / T`.
+pub fn zero_motion_rows(
+    state: &NominalState,
+    mean_rate_imu: &Vector3<f64>,
+    interval: f64,
+    velocity_sigma: f64,
+    gyro_noise_density: f64,
+) -> Stacked {
+    let mut rows = Stacked::default();
+    let mut h = Jacobian3::zeros();
+    h.fixed_view_mut::<3, 3>(0, VEL)
+        .copy_from(&Matrix3::identity());
+    rows.push(
+        &-state.v,
+        &h,
+        &(Matrix3::identity() * velocity_sigma.powi(2)),
+        &Observability::full(),
+    );
+    let mut h = Jacobian3::zeros();
+    h.fixed_view_mut::<3, 3>(0, GYRO_BIAS)
+        .copy_from(&Matrix3::identity());
+    rows.push(
+        &(mean_rate_imu - state.gyro_bias),
+        &h,
+        &(Matrix3::identity() * gyro_noise_density.powi(2) / interval),
+        &Observability::full(),
+    );
+    rows
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gravity_alignment_recovers_roll_and_pitch() {
+        let q = UnitQuaternion::from_euler_angles(0.3, -0.2, 1.0);
+        let f = q.inverse_transform_vector(&Vector3::new(0.0, 0.0, -9.8));
+        let mut means = StationaryMeans::default();
+        means.add(
+            &ImuSample::Rate {
+                t: 0.0,
+                gyro: Vector3::new(1e-3, 0.0, 0.0),
+                accel: f,
+            },
+            0.01,
+        );
+        let state = means.aligned_state(&UnitQuaternion::identity());
+        let (roll, pitch, yaw) = state.q.euler_angles();
+        assert!((roll - 0.3).abs() < 1e-12 && (pitch + 0.2).abs() < 1e-12);
+        assert_eq!(yaw, 0.0);
+        assert_eq!(state.gyro_bias, Vector3::new(1e-3, 0.0, 0.0));
+    }
+}

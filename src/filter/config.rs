@@ -1,0 +1,256 @@
+//! Filter configuration (the `[filter]` table): noise model, initial uncertainty, stationary
+//! start, bad-input limits and the relative-pose update mode. Every key has a default, so an
+//! empty table is a working MTi-G-7x0 configuration.
+
+use nalgebra::UnitQuaternion;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::sensors::Mount;
+
+const DEG: f64 = std::f64::consts::PI / 180.0;
+/// Standard gravity (CGPM 1901), the default magnitude of the gravity model.
+pub const STANDARD_GRAVITY: f64 = 9.80665;
+
+/// How an odometry epoch's relative pose enters the filter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RelativePoseUpdate {
+    /// Displacement and rotation fused against a stochastic clone of the pose at the earlier
+    /// epoch, so the correlation between the two epochs is kept (DESIGN.md 4.9).
+    Cloned,
+    /// The paper's update (sec. 4.3): body velocity = displacement / interval, and the rotation
+    /// fused on the current attitude with the earlier attitude taken as exact.
+    Velocity,
+}
+
+/// Keys of the `[filter]` table. Units are SI unless the key says `_deg`; noise densities are
+/// per square root of a hertz, random walks are the densities of the white noise driving the
+/// walk. Defaults are the MTi-G-7x0 / MTi-300 datasheet figures (PROTOCOLS.md 2.5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FilterConfig {
+    /// Magnitude of gravity in m/s^2, pointing down in NED. Default: standard gravity
+    /// 9.80665; set the local value (e.g. from a normal-gravity formula) for long dead reckoning.
+    pub gravity_mps2: f64,
+    /// Gyro angle random walk, rad/s/sqrt(Hz). Default 0.01 deg/s/sqrt(Hz).
+    pub gyro_noise_density: f64,
+    /// Accelerometer velocity random walk, m/s^2/sqrt(Hz). Default 60 ug/sqrt(Hz).
+    pub accel_noise_density: f64,
+    /// Gyro bias random walk, rad/s^2/sqrt(Hz). Default: the 10 deg/h in-run stability reached
+    /// after 100 s.
+    pub gyro_bias_random_walk: f64,
+    /// Accelerometer bias random walk, m/s^3/sqrt(Hz). Default: the 15 ug in-run stability
+    /// reached after 100 s.
+    pub accel_bias_random_walk: f64,
+    /// Gyro scale-factor random walk, 1/sqrt(s).
+    pub gyro_scale_random_walk: f64,
+    /// Accelerometer scale-factor random walk, 1/sqrt(s).
+    pub accel_scale_random_walk: f64,
+    /// Initial position sigma, m (the origin is defined at the start, so this is small).
+    pub initial_sigma_position_m: f64,
+    /// Initial velocity sigma, m/s.
+    pub initial_sigma_velocity_mps: f64,
+    /// Initial roll and pitch sigma after gravity alignment, degrees.
+    pub initial_sigma_tilt_deg: f64,
+    /// Initial yaw sigma, degrees (yaw 0 defines the local north at the start).
+    pub initial_sigma_yaw_deg: f64,
+    /// Initial gyro bias sigma after the stationary mean rate was removed, rad/s.
+    pub initial_sigma_gyro_bias: f64,
+    /// Initial accelerometer bias sigma, m/s^2.
+    pub initial_sigma_accel_bias: f64,
+    /// Initial gyro scale-factor sigma (dimensionless, 0.001 = 1000 ppm).
+    pub initial_sigma_gyro_scale: f64,
+    /// Initial accelerometer scale-factor sigma (dimensionless).
+    pub initial_sigma_accel_scale: f64,
+    /// Averaging window for gravity alignment (roll, pitch) and the initial gyro bias, s.
+    pub coarse_alignment_s: f64,
+    /// Length of the stationary start, s, counted from the first IMU sample: zero-velocity and
+    /// zero-rate updates run until then (the paper used 40 s). At least `coarse_alignment_s`.
+    pub stationary_start_s: f64,
+    /// Interval of the zero-velocity / zero-rate updates during the stationary start, s.
+    pub zupt_interval_s: f64,
+    /// Sigma of the zero-velocity pseudo-measurement, m/s (vibration, hand shake).
+    pub zupt_velocity_sigma_mps: f64,
+    /// Longest IMU interval integrated normally, s; a longer gap marks the filter degraded.
+    pub max_imu_gap_s: f64,
+    /// Probability of the chi-square innovation gate on the NIS; 1.0 disables the gate.
+    pub gate_probability: f64,
+    /// `"cloned"` (default) or `"velocity"`.
+    pub relative_pose_update: RelativePoseUpdate,
+    /// Largest difference between a measurement's epoch times and the clone / filter times,
+    /// s; the difference is bridged with the filter's own propagated motion.
+    pub epoch_time_tolerance_s: f64,
+    /// IMU mount: rotation of the IMU frame into body FRD, `[roll, pitch, yaw]` in degrees,
+    /// composed as in DESIGN.md 3. The lever arm is neglected (body origin at the IMU).
+    pub imu_mount_rpy_deg: [f64; 3],
+    /// Length of the pose history kept for deskewing and odometer priors, s.
+    pub pose_history_s: f64,
+    /// Highest IMU rate expected, Hz; sizes the pose history once, at construction.
+    pub max_imu_rate_hz: f64,
+}
+
+impl Default for FilterConfig {
+    fn default() -> Self {
+        let bias_settling_s: f64 = 100.0;
+        Self {
+            gravity_mps2: STANDARD_GRAVITY,
+            gyro_noise_density: 0.01 * DEG,
+            accel_noise_density: 60e-6 * STANDARD_GRAVITY,
+            gyro_bias_random_walk: 10.0 * DEG / 3600.0 / bias_settling_s.sqrt(),
+            accel_bias_random_walk: 15e-6 * STANDARD_GRAVITY / bias_settling_s.sqrt(),
+            gyro_scale_random_walk: 1e-6,
+            accel_scale_random_walk: 1e-6,
+            initial_sigma_position_m: 0.01,
+            initial_sigma_velocity_mps: 0.1,
+            initial_sigma_tilt_deg: 2.0,
+            initial_sigma_yaw_deg: 0.1,
+            initial_sigma_gyro_bias: 0.1 * DEG,
+            initial_sigma_accel_bias: 0.05,
+            initial_sigma_gyro_scale: 0.005,
+            initial_sigma_accel_scale: 0.005,
+            coarse_alignment_s: 1.0,
+            stationary_start_s: 40.0,
+            zupt_interval_s: 0.1,
+            zupt_velocity_sigma_mps: 0.01,
+            max_imu_gap_s: 0.05,
+            gate_probability: 0.9999,
+            relative_pose_update: RelativePoseUpdate::Cloned,
+            epoch_time_tolerance_s: 0.05,
+            imu_mount_rpy_deg: [0.0; 3],
+            pose_history_s: 2.0,
+            max_imu_rate_hz: 1000.0,
+        }
+    }
+}
+
+/// A configuration value the filter cannot run with.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ConfigError {
+    #[error("filter.{key} = {value} is invalid: set a finite value greater than zero")]
+    NotPositive { key: &'static str, value: f64 },
+    #[error("filter.{key} = {value} is invalid: set a finite value of zero or more")]
+    Negative { key: &'static str, value: f64 },
+    #[error("filter.gate_probability = {0} is invalid: set a probability in (0, 1], 1 disables the gate")]
+    GateProbability(f64),
+    #[error("filter.stationary_start_s = {stationary} is shorter than filter.coarse_alignment_s = {coarse}: make it at least as long")]
+    StationaryShorterThanAlignment { stationary: f64, coarse: f64 },
+    #[error("filter.imu_mount_rpy_deg = {0:?} is invalid: set three finite angles in degrees")]
+    Mount([f64; 3]),
+}
+
+impl FilterConfig {
+    /// Checks every key; the error names the first bad key and how to fix it.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = [
+            ("gravity_mps2", self.gravity_mps2),
+            ("gyro_noise_density", self.gyro_noise_density),
+            ("accel_noise_density", self.accel_noise_density),
+            ("initial_sigma_position_m", self.initial_sigma_position_m),
+            (
+                "initial_sigma_velocity_mps",
+                self.initial_sigma_velocity_mps,
+            ),
+            ("initial_sigma_tilt_deg", self.initial_sigma_tilt_deg),
+            ("initial_sigma_yaw_deg", self.initial_sigma_yaw_deg),
+            ("initial_sigma_gyro_bias", self.initial_sigma_gyro_bias),
+            ("initial_sigma_accel_bias", self.initial_sigma_accel_bias),
+            ("initial_sigma_gyro_scale", self.initial_sigma_gyro_scale),
+            ("initial_sigma_accel_scale", self.initial_sigma_accel_scale),
+            ("coarse_alignment_s", self.coarse_alignment_s),
+            ("zupt_interval_s", self.zupt_interval_s),
+            ("zupt_velocity_sigma_mps", self.zupt_velocity_sigma_mps),
+            ("max_imu_gap_s", self.max_imu_gap_s),
+            ("epoch_time_tolerance_s", self.epoch_time_tolerance_s),
+            ("pose_history_s", self.pose_history_s),
+            ("max_imu_rate_hz", self.max_imu_rate_hz),
+        ];
+        for (key, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return Err(ConfigError::NotPositive { key, value });
+            }
+        }
+        let non_negative = [
+            ("gyro_bias_random_walk", self.gyro_bias_random_walk),
+            ("accel_bias_random_walk", self.accel_bias_random_walk),
+            ("gyro_scale_random_walk", self.gyro_scale_random_walk),
+            ("accel_scale_random_walk", self.accel_scale_random_walk),
+            ("stationary_start_s", self.stationary_start_s),
+        ];
+        for (key, value) in non_negative {
+            if !(value.is_finite() && value >= 0.0) {
+                return Err(ConfigError::Negative { key, value });
+            }
+        }
+        if !(self.gate_probability > 0.0 && self.gate_probability <= 1.0) {
+            return Err(ConfigError::GateProbability(self.gate_probability));
+        }
+        if self.stationary_start_s < self.coarse_alignment_s {
+            return Err(ConfigError::StationaryShorterThanAlignment {
+                stationary: self.stationary_start_s,
+                coarse: self.coarse_alignment_s,
+            });
+        }
+        if !self.imu_mount_rpy_deg.iter().all(|a| a.is_finite()) {
+            return Err(ConfigError::Mount(self.imu_mount_rpy_deg));
+        }
+        Ok(())
+    }
+
+    /// Rotation of IMU-frame vectors into the body frame.
+    pub fn imu_to_body(&self) -> UnitQuaternion<f64> {
+        Mount::from_rpy_deg(self.imu_mount_rpy_deg, [0.0; 3]).rotation
+    }
+
+    pub(crate) fn pose_history_capacity(&self) -> usize {
+        (self.pose_history_s * self.max_imu_rate_hz).ceil().max(2.0) as usize
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_validate_and_an_empty_table_gives_the_defaults() {
+        FilterConfig::default().validate().unwrap();
+        let parsed: FilterConfig = toml::from_str("").unwrap();
+        assert_eq!(parsed, FilterConfig::default());
+        assert_eq!(parsed.stationary_start_s, 40.0);
+    }
+
+    #[test]
+    fn keys_parse_and_unknown_keys_are_refused() {
+        let parsed: FilterConfig =
+            toml::from_str("relative_pose_update = \"velocity\"\nimu_mount_rpy_deg = [0, 0, 90]")
+                .unwrap();
+        assert_eq!(parsed.relative_pose_update, RelativePoseUpdate::Velocity);
+        let rotated = parsed.imu_to_body() * nalgebra::Vector3::x();
+        assert!((rotated - nalgebra::Vector3::y()).norm() < 1e-12);
+        assert!(toml::from_str::<FilterConfig>("gyro_noise = 1.0").is_err());
+    }
+
+    #[test]
+    fn bad_values_give_one_line_errors_naming_the_key() {
+        let config = FilterConfig {
+            max_imu_gap_s: -1.0,
+            ..FilterConfig::default()
+        };
+        let message = config.validate().unwrap_err().to_string();
+        assert!(message.contains("filter.max_imu_gap_s"), "{message}");
+        assert!(!message.contains('\n'));
+        let config = FilterConfig {
+            gate_probability: 1.5,
+            ..FilterConfig::default()
+        };
+        assert!(matches!(
+            config.validate(),
+            Err(ConfigError::GateProbability(_))
+        ));
+        let config = FilterConfig {
+            stationary_start_s: 0.5,
+            ..FilterConfig::default()
+        };
+        assert!(config.validate().is_err());
+    }
+}

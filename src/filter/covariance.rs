@@ -1,0 +1,204 @@
+//! Covariance propagation of the error state over one IMU interval.
+//!
+//! Continuous error dynamics (global attitude error, `R` = body->NED, `M` = IMU->body,
+//! `f`, `w` the corrected IMU-frame specific force and rate):
+//! `dp' = dv`, `dv' = -[R M f]x dtheta - R M (dba + f * dsa) / (1 + sa) + noise`,
+//! `dtheta' = -R M (dbg + w * dsg) / (1 + sg) + noise`, biases and scale factors random walks.
+//! Discretised as `F = I + A dt` (first order; at 100-1000 Hz the neglected `A^2 dt^2 / 2`
+//! terms are below 1e-4 of the kept ones) and `Q = diag(q) dt` from the noise densities.
+//! `A` has only five non-zero 3x3 blocks, so `F P F^T = P + dt (A P) + dt (A (P + dt A P)^T)^T`
+//! is applied block-wise on the fixed 27x27 augmented covariance: the clone columns are
+//! carried along, which is what keeps the cross-covariance with the cloned pose right.
+
+use std::ops::AddAssign;
+
+use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
+
+use super::config::FilterConfig;
+use super::state::{
+    Covariance, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS,
+    VEL,
+};
+use super::strapdown::Corrected;
+
+/// The non-zero blocks of the continuous error-dynamics matrix `A`.
+#[derive(Debug, Clone, Copy)]
+pub struct ErrorDynamics {
+    vel_att: Matrix3<f64>,
+    vel_accel_bias: Matrix3<f64>,
+    vel_accel_scale: Matrix3<f64>,
+    att_gyro_bias: Matrix3<f64>,
+    att_gyro_scale: Matrix3<f64>,
+}
+
+impl ErrorDynamics {
+    /// Linearised about the attitude at the start of the interval and the mean corrected rates.
+    pub fn new(
+        q: &UnitQuaternion<f64>,
+        imu_to_body: &UnitQuaternion<f64>,
+        inc: &Corrected,
+        gyro_scale: &Vector3<f64>,
+        accel_scale: &Vector3<f64>,
+    ) -> Self {
+        let imu_to_ned = (q * imu_to_body).to_rotation_matrix().into_inner();
+        let f = inc.dv_imu / inc.dt;
+        let w = inc.dtheta_imu / inc.dt;
+        let inv_sa = Vector3::repeat(1.0).component_div(&accel_scale.add_scalar(1.0));
+        let inv_sg = Vector3::repeat(1.0).component_div(&gyro_scale.add_scalar(1.0));
+        let f_ned = imu_to_ned * f;
+        Self {
+            vel_att: -f_ned.cross_matrix(),
+            vel_accel_bias: -imu_to_ned * Matrix3::from_diagonal(&inv_sa),
+            vel_accel_scale: -imu_to_ned * Matrix3::from_diagonal(&f.component_mul(&inv_sa)),
+            att_gyro_bias: -imu_to_ned * Matrix3::from_diagonal(&inv_sg),
+            att_gyro_scale: -imu_to_ned * Matrix3::from_diagonal(&w.component_mul(&inv_sg)),
+        }
+    }
+
+    /// `dt A M` for the first `C` columns of `M`: only the 9 rows of position, velocity and
+    /// attitude are non-zero, so only they are returned.
+    fn apply<const C: usize>(&self, m: &Covariance, dt: f64) -> SMatrix<f64, 9, C> {
+        let rows = |at: usize| m.fixed_view::<3, C>(at, 0);
+        let mut out = SMatrix::<f64, 9, C>::zeros();
+        out.fixed_rows_mut::<3>(POS).copy_from(&rows(VEL));
+        out.fixed_rows_mut::<3>(VEL).copy_from(
+            &(self.vel_att * rows(ATT)
+                + self.vel_accel_bias * rows(ACCEL_BIAS)
+                + self.vel_accel_scale * rows(ACCEL_SCALE)),
+        );
+        out.fixed_rows_mut::<3>(ATT).copy_from(
+            &(self.att_gyro_bias * rows(GYRO_BIAS) + self.att_gyro_scale * rows(GYRO_SCALE)),
+        );
+        out * dt
+    }
+
+    /// `dt M A^T` for the first `C` rows of `M`: only columns 0..9 are non-zero.
+    fn apply_transposed<const C: usize>(&self, m: &Covariance, dt: f64) -> SMatrix<f64, C, 9> {
+        let columns = |at: usize| m.fixed_view::<C, 3>(0, at);
+        let mut out = SMatrix::<f64, C, 9>::zeros();
+        out.fixed_columns_mut::<3>(POS).copy_from(&columns(VEL));
+        out.fixed_columns_mut::<3>(VEL).copy_from(
+            &(columns(ATT) * self.vel_att.transpose()
+                + columns(ACCEL_BIAS) * self.vel_accel_bias.transpose()
+                + columns(ACCEL_SCALE) * self.vel_accel_scale.transpose()),
+        );
+        out.fixed_columns_mut::<3>(ATT).copy_from(
+            &(columns(GYRO_BIAS) * self.att_gyro_bias.transpose()
+                + columns(GYRO_SCALE) * self.att_gyro_scale.transpose()),
+        );
+        out * dt
+    }
+
+    /// `P <- F P F^T + Q dt` in place. With `with_clone` false the clone rows and columns
+    /// (stale until the next clone overwrites them) are skipped.
+    pub fn propagate(&self, p: &mut Covariance, noise: &ProcessNoise, dt: f64, with_clone: bool) {
+        if with_clone {
+            self.propagate_first::<AUGMENTED>(p, dt);
+        } else {
+            self.propagate_first::<ERROR_STATES>(p, dt);
+        }
+        noise.add_to(p, dt);
+    }
+
+    /// `P + dt A P` touches rows 0..9 only, and multiplying by `F^T` on the right then touches
+    /// columns 0..9 only, so only those are re-symmetrised.
+    fn propagate_first<const C: usize>(&self, p: &mut Covariance, dt: f64) {
+        let left = self.apply::<C>(p, dt);
+        p.fixed_view_mut::<9, C>(POS, 0).add_assign(&left);
+        let right = self.apply_transposed::<C>(p, dt);
+        p.fixed_view_mut::<C, 9>(0, POS).add_assign(&right);
+        for i in 0..9 {
+            for j in i + 1..C {
+                let mean = 0.5 * (p[(i, j)] + p[(j, i)]);
+                p[(i, j)] = mean;
+                p[(j, i)] = mean;
+            }
+        }
+    }
+}
+
+/// Diagonal white-noise spectral densities (squared) per error-state block.
+#[derive(Debug, Clone, Copy)]
+pub struct ProcessNoise {
+    blocks: [(usize, f64); 6],
+}
+
+impl ProcessNoise {
+    pub fn new(config: &FilterConfig) -> Self {
+        Self {
+            blocks: [
+                (VEL, config.accel_noise_density.powi(2)),
+                (ATT, config.gyro_noise_density.powi(2)),
+                (GYRO_BIAS, config.gyro_bias_random_walk.powi(2)),
+                (ACCEL_BIAS, config.accel_bias_random_walk.powi(2)),
+                (GYRO_SCALE, config.gyro_scale_random_walk.powi(2)),
+                (ACCEL_SCALE, config.accel_scale_random_walk.powi(2)),
+            ],
+        }
+    }
+
+    fn add_to(&self, p: &mut Covariance, dt: f64) {
+        for (at, density) in self.blocks {
+            for i in at..at + 3 {
+                p[(i, i)] += density * dt;
+            }
+        }
+    }
+}
+
+pub fn symmetrise(p: &mut Covariance) {
+    for i in 0..AUGMENTED {
+        for j in i + 1..AUGMENTED {
+            let mean = 0.5 * (p[(i, j)] + p[(j, i)]);
+            p[(i, j)] = mean;
+            p[(j, i)] = mean;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dense_a(d: &ErrorDynamics) -> SMatrix<f64, AUGMENTED, AUGMENTED> {
+        let mut a = SMatrix::<f64, AUGMENTED, AUGMENTED>::zeros();
+        a.fixed_view_mut::<3, 3>(POS, VEL)
+            .copy_from(&Matrix3::identity());
+        a.fixed_view_mut::<3, 3>(VEL, ATT).copy_from(&d.vel_att);
+        a.fixed_view_mut::<3, 3>(VEL, ACCEL_BIAS)
+            .copy_from(&d.vel_accel_bias);
+        a.fixed_view_mut::<3, 3>(VEL, ACCEL_SCALE)
+            .copy_from(&d.vel_accel_scale);
+        a.fixed_view_mut::<3, 3>(ATT, GYRO_BIAS)
+            .copy_from(&d.att_gyro_bias);
+        a.fixed_view_mut::<3, 3>(ATT, GYRO_SCALE)
+            .copy_from(&d.att_gyro_scale);
+        a
+    }
+
+    #[test]
+    fn block_propagation_equals_the_dense_product() {
+        let inc = Corrected {
+            dt: 0.01,
+            dtheta_imu: Vector3::new(0.01, -0.02, 0.005),
+            dv_imu: Vector3::new(0.3, 0.1, -0.098),
+            dtheta: Vector3::zeros(),
+            dv: Vector3::zeros(),
+        };
+        let q = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
+        let mount = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3);
+        let d = ErrorDynamics::new(&q, &mount, &inc, &Vector3::repeat(0.01), &Vector3::zeros());
+        let root = Covariance::from_fn(|i, j| ((i * 7 + j * 3) % 11) as f64 * 0.1);
+        let p0 = root * root.transpose() + Covariance::identity();
+        let f = Covariance::identity() + dense_a(&d) * inc.dt;
+        let mut p = p0;
+        let config = FilterConfig::default();
+        d.propagate(&mut p, &ProcessNoise::new(&config), inc.dt, true);
+        let mut expected = f * p0 * f.transpose();
+        ProcessNoise::new(&config).add_to(&mut expected, inc.dt);
+        assert!((p - expected).norm() < 1e-12 * expected.norm());
+        // The clone block itself is untouched by propagation.
+        let clone = p.fixed_view::<6, 6>(ERROR_STATES, ERROR_STATES);
+        assert_eq!(clone, p0.fixed_view::<6, 6>(ERROR_STATES, ERROR_STATES));
+    }
+}

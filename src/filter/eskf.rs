@@ -1,0 +1,770 @@
+//! The error-state EKF: IMU samples drive the nominal state and the covariance; odometry
+//! epochs and the stationary start correct them. Naming after PX4 EKF2 and Sola (2017).
+
+use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
+use thiserror::Error;
+
+use super::alignment::{zero_motion_rows, StationaryMeans};
+use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
+use super::consistency::{self, Normalised};
+use super::covariance::{ErrorDynamics, ProcessNoise};
+use super::history::{Pose, PoseHistory};
+use super::relative_pose::RelativePose;
+use super::state::{
+    Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, CLONE_ATT, CLONE_POS, ERROR_STATES,
+    GYRO_BIAS, GYRO_SCALE, POS, VEL,
+};
+use super::strapdown::{mechanise, ImuIncrement};
+use super::update::{self, GateThresholds, Stacked};
+use crate::estimate::Estimate;
+use crate::sensors::{ImuSample, TruthSample};
+
+/// Where the filter is in its start-up.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FilterPhase {
+    /// Averaging the first `coarse_alignment_s` of IMU data; no estimate yet.
+    Aligning,
+    /// Aligned; zero-velocity and zero-rate updates run until the end of the stationary start.
+    StationaryStart,
+    /// Free navigation.
+    Navigating,
+}
+
+/// What one IMU sample did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ImuOutcome {
+    /// Integrated into the state.
+    Propagated,
+    /// First `Rate` sample at the start time: kept to pair with the next one.
+    Started,
+    /// Taken into the gravity-alignment average.
+    Aligning,
+    /// Completed the gravity alignment: the state is initialised.
+    Aligned,
+    /// Not used, and counted.
+    Dropped(DropReason),
+    /// More than `max_imu_gap_s` since the previous sample: not integrated; the covariance
+    /// was grown over the gap and the filter is degraded until the next fused epoch.
+    Gap { seconds: f64 },
+    /// The sample would have put a non-finite value into the state: the filter reset.
+    Reset(ResetReason),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DropReason {
+    /// Time not after the previous sample's.
+    NonMonotonic,
+    /// NaN or infinity in the time or the values, or a `Delta` interval that is not positive.
+    NonFinite,
+}
+
+/// Why the filter reset its covariance (and dropped any clone).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
+pub enum ResetReason {
+    #[error("IMU propagation produced a non-finite state (absurd IMU sample)")]
+    NonFinitePropagation,
+    #[error("a measurement update produced a non-finite state")]
+    NonFiniteUpdate,
+}
+
+/// Why the estimate should not be trusted as a full IMU/odometry solution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Degradation {
+    ImuGap { seconds: f64 },
+}
+
+/// Counts of bad input, for logs and the summary.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FilterCounters {
+    pub non_monotonic: u64,
+    pub non_finite: u64,
+    pub imu_gaps: u64,
+    pub rejected_updates: u64,
+    pub resets: u64,
+}
+
+/// Which measurement an update report is about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UpdateKind {
+    RelativePoseCloned,
+    RelativePoseVelocity,
+    ZeroMotion,
+}
+
+/// Outcome of one measurement update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UpdateReport {
+    pub kind: UpdateKind,
+    pub t: f64,
+    /// Normalised innovation squared over the observable rows.
+    pub nis: f64,
+    /// Observable rows fused (0: nothing was observable, nothing changed).
+    pub dof: usize,
+    /// Gate threshold on the NIS.
+    pub threshold: f64,
+    /// False when the gate rejected the measurement.
+    pub accepted: bool,
+}
+
+/// A measurement the filter could not use.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+pub enum UpdateError {
+    #[error("filter not aligned yet: wait for the end of filter.coarse_alignment_s")]
+    NotAligned,
+    #[error("relative pose has NaN or infinite values: the odometer must not report it")]
+    NonFinite,
+    #[error("relative pose epoch t = {t} s is not the filter time {filter_t} s: feed the IMU up to the epoch first")]
+    TimeMismatch { t: f64, filter_t: f64 },
+    #[error("no cloned pose at t_ref = {t_ref} s: call clone_pose() at every odometry epoch")]
+    NoClone { t_ref: f64 },
+    #[error("reference epoch t_ref = {t_ref} s is outside the pose history: raise filter.pose_history_s")]
+    OutsideHistory { t_ref: f64 },
+    #[error("measurement covariance is not positive definite: check the odometer's covariance")]
+    BadCovariance,
+}
+
+/// Relative pose predicted by the filter between two times (the odometer's prior).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosePrior {
+    /// `C_t^t_ref`: rotates body-at-t vectors into body at t_ref.
+    pub rotation: UnitQuaternion<f64>,
+    /// Body origin at t in body-at-t_ref coordinates, m.
+    pub translation: Vector3<f64>,
+    /// Covariance of the rotation vector, rad^2.
+    pub rotation_covariance: Matrix3<f64>,
+    /// Covariance of the translation, m^2.
+    pub translation_covariance: Matrix3<f64>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct ZeroMotionWindow {
+    start: f64,
+    rate_sum: Vector3<f64>,
+    weight: f64,
+}
+
+/// Error-state Kalman filter over the 21 error states of `state.rs`, plus the 6 states of a
+/// cloned reference pose while an odometry epoch is open.
+#[derive(Debug, Clone)]
+pub struct Eskf {
+    config: FilterConfig,
+    imu_to_body: UnitQuaternion<f64>,
+    gravity: Vector3<f64>,
+    noise: ProcessNoise,
+    gate: GateThresholds,
+    phase: FilterPhase,
+    state: NominalState,
+    covariance: Covariance,
+    clone: Option<Pose>,
+    t: Option<f64>,
+    t_start: Option<f64>,
+    previous: Option<ImuSample>,
+    dynamics: Option<ErrorDynamics>,
+    angular_rate: Vector3<f64>,
+    means: StationaryMeans,
+    zero_motion: Option<ZeroMotionWindow>,
+    history: PoseHistory,
+    counters: FilterCounters,
+    reset_counter: u8,
+    last_reset: Option<ResetReason>,
+    degraded: Option<Degradation>,
+    last_fused: Option<f64>,
+}
+
+impl Eskf {
+    /// A filter that aligns itself from the stationary start.
+    pub fn new(config: FilterConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        let covariance = initial_covariance(&config);
+        Ok(Self {
+            imu_to_body: config.imu_to_body(),
+            gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
+            noise: ProcessNoise::new(&config),
+            gate: GateThresholds::new(config.gate_probability),
+            phase: FilterPhase::Aligning,
+            state: NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros()),
+            covariance,
+            clone: None,
+            t: None,
+            t_start: None,
+            previous: None,
+            dynamics: None,
+            angular_rate: Vector3::zeros(),
+            means: StationaryMeans::default(),
+            zero_motion: None,
+            history: PoseHistory::with_capacity(config.pose_history_capacity()),
+            counters: FilterCounters::default(),
+            reset_counter: 0,
+            last_reset: None,
+            degraded: None,
+            last_fused: None,
+            config,
+        })
+    }
+
+    /// A filter already navigating from a known state at time `t` (simulation, warm restart),
+    /// with the configured initial sigmas.
+    pub fn with_initial_state(
+        config: FilterConfig,
+        t: f64,
+        state: NominalState,
+    ) -> Result<Self, ConfigError> {
+        let mut filter = Self::new(config)?;
+        filter.state = state;
+        filter.phase = FilterPhase::Navigating;
+        filter.t = Some(t);
+        filter.t_start = Some(t);
+        filter.record_pose(t);
+        Ok(filter)
+    }
+
+    /// Feeds one IMU sample (times strictly increasing, host clock).
+    pub fn push_imu(&mut self, sample: &ImuSample) -> ImuOutcome {
+        if !sample_is_finite(sample) {
+            self.counters.non_finite += 1;
+            return ImuOutcome::Dropped(DropReason::NonFinite);
+        }
+        let t = sample.time();
+        let interval = match (self.t, sample) {
+            (Some(last), ImuSample::Rate { .. }) if t == last && self.previous.is_none() => {
+                self.previous = Some(*sample);
+                return ImuOutcome::Started;
+            }
+            (Some(last), _) if t <= last => {
+                self.counters.non_monotonic += 1;
+                return ImuOutcome::Dropped(DropReason::NonMonotonic);
+            }
+            (_, ImuSample::Delta { dt, .. }) => *dt,
+            (Some(last), ImuSample::Rate { .. }) => t - last,
+            (None, ImuSample::Rate { .. }) => 0.0,
+        };
+        let since_last = self.t.map_or(0.0, |last| t - last);
+        let previous = self.previous.replace(*sample).or(match (self.t, sample) {
+            // No earlier sample to pair with (started from a given state): hold this one.
+            (Some(last), ImuSample::Rate { gyro, accel, .. }) => Some(ImuSample::Rate {
+                t: last,
+                gyro: *gyro,
+                accel: *accel,
+            }),
+            _ => None,
+        });
+        self.t = Some(t);
+        if since_last.max(interval) > self.config.max_imu_gap_s {
+            return self.bridge_gap(t, since_last.max(interval));
+        }
+        match self.phase {
+            FilterPhase::Aligning => self.align(t, sample, interval),
+            FilterPhase::StationaryStart | FilterPhase::Navigating => {
+                let Some(increment) = ImuIncrement::from_samples(previous.as_ref(), sample) else {
+                    return ImuOutcome::Started;
+                };
+                if let Some(reason) = self.propagate(&increment) {
+                    return ImuOutcome::Reset(reason);
+                }
+                if self.phase == FilterPhase::StationaryStart {
+                    self.stationary_updates(t, sample, interval);
+                }
+                ImuOutcome::Propagated
+            }
+        }
+    }
+
+    fn align(&mut self, t: f64, sample: &ImuSample, interval: f64) -> ImuOutcome {
+        let start = *self.t_start.get_or_insert(t);
+        self.means.add(sample, interval);
+        if t - start < self.config.coarse_alignment_s {
+            return ImuOutcome::Aligning;
+        }
+        self.state = self.means.aligned_state(&self.imu_to_body);
+        self.covariance = initial_covariance(&self.config);
+        self.zero_motion = None;
+        self.phase = if t - start < self.config.stationary_start_s {
+            FilterPhase::StationaryStart
+        } else {
+            FilterPhase::Navigating
+        };
+        self.record_pose(t);
+        ImuOutcome::Aligned
+    }
+
+    /// Strapdown step plus covariance propagation; commits only a finite result.
+    fn propagate(&mut self, increment: &ImuIncrement) -> Option<ResetReason> {
+        let corrected = increment.corrected(&self.state, &self.imu_to_body);
+        let next = mechanise(&self.state, &corrected, &self.gravity);
+        let dynamics = ErrorDynamics::new(
+            &self.state.q,
+            &self.imu_to_body,
+            &corrected,
+            &self.state.gyro_scale,
+            &self.state.accel_scale,
+        );
+        // In place: a non-finite result is discarded by the reset anyway.
+        dynamics.propagate(
+            &mut self.covariance,
+            &self.noise,
+            corrected.dt,
+            self.clone.is_some(),
+        );
+        // Propagation changes only rows and columns 0..9 and the diagonal.
+        let covariance_finite = self
+            .covariance
+            .fixed_rows::<9>(POS)
+            .iter()
+            .all(|x| x.is_finite())
+            && self.covariance.diagonal().iter().all(|x| x.is_finite());
+        if !next.is_finite() || !covariance_finite {
+            self.reset(ResetReason::NonFinitePropagation);
+            return Some(ResetReason::NonFinitePropagation);
+        }
+        self.state = next;
+        self.dynamics = Some(dynamics);
+        self.angular_rate = corrected.dtheta / corrected.dt;
+        self.record_pose(increment.t);
+        None
+    }
+
+    /// Over a gap the IMU is unknown: the state coasts at constant velocity and the covariance
+    /// grows as the last dynamics and the process noise say, in steps of the allowed interval.
+    fn bridge_gap(&mut self, t: f64, seconds: f64) -> ImuOutcome {
+        self.counters.imu_gaps += 1;
+        self.degraded = Some(Degradation::ImuGap { seconds });
+        if self.phase == FilterPhase::Aligning {
+            self.means = StationaryMeans::default();
+            self.t_start = Some(t);
+            return ImuOutcome::Gap { seconds };
+        }
+        let steps = (seconds / self.config.max_imu_gap_s).ceil();
+        let step = seconds / steps;
+        for _ in 0..steps as usize {
+            let dynamics = self.dynamics.unwrap_or_else(|| self.rest_dynamics());
+            dynamics.propagate(
+                &mut self.covariance,
+                &self.noise,
+                step,
+                self.clone.is_some(),
+            );
+        }
+        self.state.p += self.state.v * seconds;
+        self.zero_motion = None;
+        self.record_pose(t);
+        ImuOutcome::Gap { seconds }
+    }
+
+    /// Error dynamics of a body at rest in its current attitude.
+    fn rest_dynamics(&self) -> ErrorDynamics {
+        let dt = self.config.max_imu_gap_s;
+        let force_imu = self
+            .imu_to_body
+            .inverse_transform_vector(&self.state.q.inverse_transform_vector(&-self.gravity));
+        let at_rest = super::strapdown::Corrected {
+            dt,
+            dtheta_imu: Vector3::zeros(),
+            dv_imu: force_imu * dt,
+            dtheta: Vector3::zeros(),
+            dv: Vector3::zeros(),
+        };
+        ErrorDynamics::new(
+            &self.state.q,
+            &self.imu_to_body,
+            &at_rest,
+            &self.state.gyro_scale,
+            &self.state.accel_scale,
+        )
+    }
+
+    fn stationary_updates(&mut self, t: f64, sample: &ImuSample, interval: f64) {
+        let window = self.zero_motion.get_or_insert(ZeroMotionWindow {
+            start: t - interval,
+            rate_sum: Vector3::zeros(),
+            weight: 0.0,
+        });
+        let rate = match *sample {
+            ImuSample::Rate { gyro, .. } => gyro,
+            ImuSample::Delta { dt, dq, .. } => dq.scaled_axis() / dt,
+        };
+        window.rate_sum += rate * interval;
+        window.weight += interval;
+        let window = *window;
+        if t - window.start >= self.config.zupt_interval_s {
+            self.zero_motion = None;
+            let rows = zero_motion_rows(
+                &self.state,
+                &(window.rate_sum / window.weight),
+                window.weight,
+                self.config.zupt_velocity_sigma_mps,
+                self.config.gyro_noise_density,
+            );
+            // A rejected or failed zero-motion update only skips one window.
+            let _ = self.fuse(&rows, UpdateKind::ZeroMotion, t);
+        }
+        let start = self.t_start.unwrap_or(t);
+        if t - start >= self.config.stationary_start_s {
+            self.phase = FilterPhase::Navigating;
+        }
+    }
+
+    /// Clones the current pose as the reference of the next odometry epoch (replacing any
+    /// open clone). Returns the clone's time.
+    pub fn clone_pose(&mut self) -> Result<f64, UpdateError> {
+        let t = self.aligned_time()?;
+        let p = &mut self.covariance;
+        for (clone_at, source) in [(CLONE_POS, POS), (CLONE_ATT, ATT)] {
+            for k in 0..3 {
+                for column in 0..ERROR_STATES {
+                    let value = p[(source + k, column)];
+                    p[(clone_at + k, column)] = value;
+                    p[(column, clone_at + k)] = value;
+                }
+            }
+        }
+        for (a, source_a) in [(CLONE_POS, POS), (CLONE_ATT, ATT)] {
+            for (b, source_b) in [(CLONE_POS, POS), (CLONE_ATT, ATT)] {
+                for i in 0..3 {
+                    for j in 0..3 {
+                        p[(a + i, b + j)] = p[(source_a + i, source_b + j)];
+                    }
+                }
+            }
+        }
+        self.clone = Some(Pose {
+            t,
+            p: self.state.p,
+            q: self.state.q,
+        });
+        Ok(t)
+    }
+
+    /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
+    pub fn update_relative_pose(
+        &mut self,
+        measurement: &RelativePose,
+    ) -> Result<UpdateReport, UpdateError> {
+        let now = self.aligned_time()?;
+        if !measurement.is_finite() {
+            return Err(UpdateError::NonFinite);
+        }
+        let tolerance = self.config.epoch_time_tolerance_s;
+        if (measurement.t - now).abs() > tolerance {
+            return Err(UpdateError::TimeMismatch {
+                t: measurement.t,
+                filter_t: now,
+            });
+        }
+        let current = Pose {
+            t: now,
+            p: self.state.p,
+            q: self.state.q,
+        };
+        let at_ref =
+            self.history
+                .pose_at(measurement.t_ref)
+                .ok_or(UpdateError::OutsideHistory {
+                    t_ref: measurement.t_ref,
+                })?;
+        let at_t = match self.history.pose_at(measurement.t) {
+            Some(pose) => pose,
+            // Epoch slightly after the newest IMU sample: the last bridge is not available.
+            None => current,
+        };
+        let (rows, kind) = match self.config.relative_pose_update {
+            RelativePoseUpdate::Cloned => {
+                let clone = self
+                    .clone
+                    .take()
+                    .filter(|c| (c.t - measurement.t_ref).abs() <= tolerance)
+                    .ok_or(UpdateError::NoClone {
+                        t_ref: measurement.t_ref,
+                    })?;
+                let bridged = measurement.bridged(&clone, &at_ref, &at_t, &current);
+                (
+                    bridged.cloned_rows(&clone, &self.state),
+                    UpdateKind::RelativePoseCloned,
+                )
+            }
+            RelativePoseUpdate::Velocity => {
+                let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
+                (
+                    bridged.velocity_rows(&at_ref, &self.state),
+                    UpdateKind::RelativePoseVelocity,
+                )
+            }
+        };
+        let report = self.fuse(&rows, kind, now)?;
+        if report.accepted && report.dof > 0 {
+            self.last_fused = Some(now);
+            self.degraded = None;
+        }
+        Ok(report)
+    }
+
+    fn fuse(
+        &mut self,
+        rows: &Stacked,
+        kind: UpdateKind,
+        t: f64,
+    ) -> Result<UpdateReport, UpdateError> {
+        if !rows.is_finite() {
+            return Err(UpdateError::NonFinite);
+        }
+        let mut covariance = self.covariance;
+        let gated = update::apply(&mut covariance, rows, &self.gate)
+            .map_err(|_| UpdateError::BadCovariance)?;
+        let report = UpdateReport {
+            kind,
+            t,
+            nis: gated.nis,
+            dof: gated.dof,
+            threshold: gated.threshold,
+            accepted: gated.correction.is_some(),
+        };
+        let Some(correction) = gated.correction else {
+            if gated.dof > 0 {
+                self.counters.rejected_updates += 1;
+            }
+            return Ok(report);
+        };
+        let next = self.state.inject(&correction);
+        if !next.is_finite() || !covariance.iter().all(|x| x.is_finite()) {
+            self.reset(ResetReason::NonFiniteUpdate);
+            return Ok(UpdateReport {
+                accepted: false,
+                ..report
+            });
+        }
+        self.state = next;
+        self.covariance = covariance;
+        self.replace_latest_pose(t);
+        Ok(report)
+    }
+
+    fn aligned_time(&self) -> Result<f64, UpdateError> {
+        match (self.phase, self.t) {
+            (FilterPhase::Aligning, _) | (_, None) => Err(UpdateError::NotAligned),
+            (_, Some(t)) => Ok(t),
+        }
+    }
+
+    /// Keeps the last finite state, restarts the covariance from the initial sigmas and drops
+    /// the clone; the estimate jumps, so `reset_counter` moves.
+    fn reset(&mut self, reason: ResetReason) {
+        self.covariance = initial_covariance(&self.config);
+        self.clone = None;
+        self.reset_counter = self.reset_counter.wrapping_add(1);
+        self.counters.resets += 1;
+        self.last_reset = Some(reason);
+    }
+
+    fn record_pose(&mut self, t: f64) {
+        self.history.push(Pose {
+            t,
+            p: self.state.p,
+            q: self.state.q,
+        });
+    }
+
+    fn replace_latest_pose(&mut self, t: f64) {
+        if self.history.span().is_some_and(|(_, newest)| newest == t) {
+            self.history.pop_newest();
+        }
+        self.record_pose(t);
+    }
+
+    /// Propagated pose at `t` within the pose history (deskewing a beam measured at `t`).
+    pub fn pose_at(&self, t: f64) -> Option<Pose> {
+        self.history.pose_at(t)
+    }
+
+    /// The relative pose from `t_ref` to `t` predicted by the filter, as the odometer's prior.
+    /// Its covariance is exact (from the augmented covariance) when `t_ref` is the open
+    /// clone's time and `t` the filter time; otherwise it is the IMU error growth over the
+    /// interval: velocity and gyro-bias uncertainty times the interval plus the white noise.
+    pub fn relative_pose(&self, t_ref: f64, t: f64) -> Option<PosePrior> {
+        let reference = self.history.pose_at(t_ref)?;
+        let current = self.history.pose_at(t)?;
+        let (rotation, translation) = RelativePose::predict(&reference, &current);
+        let tolerance = self.config.epoch_time_tolerance_s;
+        let exact = self.clone.filter(|c| {
+            (c.t - t_ref).abs() <= tolerance
+                && self.t.is_some_and(|now| (now - t).abs() <= tolerance)
+        });
+        let (rotation_covariance, translation_covariance) = match exact {
+            Some(clone) => self.clone_relative_covariance(&clone, t),
+            None => self.growth_covariance(&reference, t - t_ref),
+        };
+        Some(PosePrior {
+            rotation,
+            translation,
+            rotation_covariance,
+            translation_covariance,
+        })
+    }
+
+    fn clone_relative_covariance(&self, clone: &Pose, t: f64) -> (Matrix3<f64>, Matrix3<f64>) {
+        let full = super::relative_pose::RelativeRotation {
+            rotation_vector: Vector3::zeros(),
+            covariance: Matrix3::zeros(),
+            observability: super::update::Observability::full(),
+        };
+        let probe = RelativePose {
+            t_ref: clone.t,
+            t,
+            rotation: Some(full),
+            translation: Some(super::relative_pose::RelativeTranslation {
+                displacement: Vector3::zeros(),
+                covariance: Matrix3::zeros(),
+                observability: super::update::Observability::full(),
+            }),
+        };
+        let rows = probe.cloned_rows(clone, &self.state);
+        let s = rows.innovation_covariance(&self.covariance);
+        // The probe's noise is zero, so the covariance is H P H^T.
+        (
+            s.fixed_view::<3, 3>(0, 0).into(),
+            s.fixed_view::<3, 3>(3, 3).into(),
+        )
+    }
+
+    fn growth_covariance(&self, reference: &Pose, interval: f64) -> (Matrix3<f64>, Matrix3<f64>) {
+        let dt = interval.abs();
+        let m = self.imu_to_body.to_rotation_matrix().into_inner();
+        let bias = m * self.covariance.fixed_view::<3, 3>(GYRO_BIAS, GYRO_BIAS) * m.transpose();
+        let rotation =
+            bias * dt * dt + Matrix3::identity() * self.config.gyro_noise_density.powi(2) * dt;
+        let r_t = reference.q.to_rotation_matrix().into_inner().transpose();
+        let velocity = r_t * self.covariance.fixed_view::<3, 3>(VEL, VEL) * r_t.transpose();
+        let translation = velocity * dt * dt
+            + Matrix3::identity() * self.config.accel_noise_density.powi(2) * dt.powi(3) / 3.0;
+        (rotation, translation)
+    }
+
+    /// Zero-velocity update on demand (e.g. the vehicle is known to be on the ground).
+    pub fn update_zero_velocity(&mut self, sigma_mps: f64) -> Result<UpdateReport, UpdateError> {
+        let t = self.aligned_time()?;
+        let mut rows = Stacked::default();
+        let mut h = super::update::Jacobian3::zeros();
+        h.fixed_view_mut::<3, 3>(0, VEL)
+            .copy_from(&Matrix3::identity());
+        rows.push(
+            &-self.state.v,
+            &h,
+            &(Matrix3::identity() * sigma_mps * sigma_mps),
+            &super::update::Observability::full(),
+        );
+        self.fuse(&rows, UpdateKind::ZeroMotion, t)
+    }
+
+    pub fn estimate(&self) -> Estimate {
+        let t = self.t.unwrap_or(0.0);
+        let block =
+            |at: usize| -> Matrix3<f64> { self.covariance.fixed_view::<3, 3>(at, at).into() };
+        Estimate {
+            t,
+            position: self.state.p,
+            velocity: self.state.v,
+            attitude: self.state.q,
+            angular_rate: self.angular_rate,
+            position_covariance: block(POS),
+            velocity_covariance: block(VEL),
+            attitude_covariance: block(ATT),
+            gyro_bias: self.imu_to_body * self.state.gyro_bias,
+            accel_bias: self.imu_to_body * self.state.accel_bias,
+            reset_counter: self.reset_counter,
+            integrity: None,
+            since_last_fused: self.last_fused.map_or(f64::INFINITY, |last| t - last),
+            degraded: self.degraded.is_some() || self.phase == FilterPhase::Aligning,
+        }
+    }
+
+    /// NEES of position, velocity and attitude against truth at the filter time.
+    pub fn nees(&self, truth: &TruthSample) -> Option<Normalised> {
+        let covariance: SMatrix<f64, 9, 9> = self.covariance.fixed_view::<9, 9>(POS, POS).into();
+        consistency::nees(
+            &self.state.p,
+            &self.state.v,
+            &self.state.q,
+            &covariance,
+            truth,
+        )
+    }
+
+    pub fn phase(&self) -> FilterPhase {
+        self.phase
+    }
+    pub fn state(&self) -> &NominalState {
+        &self.state
+    }
+    /// The 27x27 covariance; rows and columns 21.. are the clone's and meaningful only while a
+    /// clone is open.
+    pub fn covariance(&self) -> &Covariance {
+        &self.covariance
+    }
+    pub fn time(&self) -> Option<f64> {
+        self.t
+    }
+    pub fn counters(&self) -> FilterCounters {
+        self.counters
+    }
+    pub fn last_reset(&self) -> Option<ResetReason> {
+        self.last_reset
+    }
+    pub fn degradation(&self) -> Option<Degradation> {
+        self.degraded
+    }
+    pub fn config(&self) -> &FilterConfig {
+        &self.config
+    }
+    /// Standard deviations of the 21 error states, in `state.rs` order.
+    pub fn sigmas(&self) -> [f64; ERROR_STATES] {
+        std::array::from_fn(|i| self.covariance[(i, i)].sqrt())
+    }
+    /// Gyro bias in the IMU frame, rad/s.
+    pub fn gyro_bias(&self) -> Vector3<f64> {
+        self.state.gyro_bias
+    }
+    pub fn cloned_attitude_error_sigma(&self) -> Option<Vector3<f64>> {
+        self.clone.map(|_| {
+            Vector3::from_fn(|i, _| self.covariance[(CLONE_ATT + i, CLONE_ATT + i)].sqrt())
+        })
+    }
+}
+
+fn sample_is_finite(sample: &ImuSample) -> bool {
+    let finite = |v: &Vector3<f64>| v.iter().all(|x| x.is_finite());
+    match sample {
+        ImuSample::Rate { t, gyro, accel } => t.is_finite() && finite(gyro) && finite(accel),
+        ImuSample::Delta { t, dt, dq, dv } => {
+            t.is_finite()
+                && dt.is_finite()
+                && *dt > 0.0
+                && dq.coords.iter().all(|x| x.is_finite())
+                && finite(dv)
+        }
+    }
+}
+
+fn initial_covariance(config: &FilterConfig) -> Covariance {
+    let deg = std::f64::consts::PI / 180.0;
+    let tilt = config.initial_sigma_tilt_deg * deg;
+    let sigmas = [
+        (POS, Vector3::repeat(config.initial_sigma_position_m)),
+        (VEL, Vector3::repeat(config.initial_sigma_velocity_mps)),
+        (
+            ATT,
+            Vector3::new(tilt, tilt, config.initial_sigma_yaw_deg * deg),
+        ),
+        (GYRO_BIAS, Vector3::repeat(config.initial_sigma_gyro_bias)),
+        (ACCEL_BIAS, Vector3::repeat(config.initial_sigma_accel_bias)),
+        (GYRO_SCALE, Vector3::repeat(config.initial_sigma_gyro_scale)),
+        (
+            ACCEL_SCALE,
+            Vector3::repeat(config.initial_sigma_accel_scale),
+        ),
+    ];
+    let mut p = Covariance::zeros();
+    for (at, sigma) in sigmas {
+        for k in 0..3 {
+            p[(at + k, at + k)] = sigma[k] * sigma[k];
+        }
+    }
+    p
+}

@@ -1,0 +1,379 @@
+//! Whole-filter tests on analytic trajectories (testkit.rs).
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+
+use super::consistency::chi_square_quantile;
+use super::testkit::{Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
+use super::*;
+use crate::sensors::ImuSample;
+
+fn start_at_truth(config: FilterConfig, trajectory: &impl Trajectory, t: f64) -> Eskf {
+    let truth = trajectory.truth(t);
+    let state = NominalState {
+        p: truth.p,
+        v: truth.v,
+        ..NominalState::at_rest(truth.q, Vector3::zeros())
+    };
+    Eskf::with_initial_state(config, t, state).unwrap()
+}
+
+fn feed(filter: &mut Eskf, samples: &[ImuSample]) {
+    for sample in samples {
+        filter.push_imu(sample);
+    }
+}
+
+fn measured_relative_pose(
+    trajectory: &impl Trajectory,
+    t_ref: f64,
+    t: f64,
+    sigma_rot: f64,
+    sigma_pos: f64,
+    rng: &mut ChaCha8Rng,
+) -> RelativePose {
+    let (a, b) = (trajectory.truth(t_ref), trajectory.truth(t));
+    let mut noise = |sigma: f64| -> Vector3<f64> {
+        Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)) * sigma
+    };
+    let c = a.q.inverse() * b.q * UnitQuaternion::from_scaled_axis(noise(sigma_rot));
+    RelativePose {
+        t_ref,
+        t,
+        rotation: Some(RelativeRotation {
+            rotation_vector: c.scaled_axis(),
+            covariance: Matrix3::identity() * sigma_rot * sigma_rot,
+            observability: Observability::full(),
+        }),
+        translation: Some(RelativeTranslation {
+            displacement: a.q.inverse_transform_vector(&(b.p - a.p)) + noise(sigma_pos),
+            covariance: Matrix3::identity() * sigma_pos * sigma_pos,
+            observability: Observability::full(),
+        }),
+    }
+}
+
+#[test]
+fn noise_free_filter_tracks_a_spinning_drift_with_both_imu_outputs() {
+    let trajectory = ConstantRotation {
+        q0: UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+        rate: Vector3::new(0.3, -0.2, 0.5),
+        velocity: Vector3::new(1.0, -0.5, 0.2),
+    };
+    for delta in [false, true] {
+        let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+        feed(
+            &mut filter,
+            &trajectory.imu_samples(0.0, 10.0, 400.0, delta),
+        );
+        let truth = trajectory.truth(10.0);
+        let estimate = filter.estimate();
+        assert!((estimate.position - truth.p).norm() < 1e-3);
+        assert!((estimate.attitude.inverse() * truth.q).angle() < 1e-6);
+        assert_eq!(filter.counters(), FilterCounters::default());
+    }
+}
+
+#[test]
+fn stationary_start_aligns_and_zupt_converges_attitude_and_gyro_bias() {
+    let truth_q = UnitQuaternion::from_euler_angles(0.05, -0.17, 0.0);
+    let trajectory = Stationary { q: truth_q };
+    let rate = 100.0;
+    let mut samples = trajectory.imu_samples(0.0, 12.0, rate, false);
+    let config = FilterConfig {
+        stationary_start_s: 10.0,
+        ..FilterConfig::default()
+    };
+    let gyro_bias = Vector3::new(2e-3, -1e-3, 1.5e-3);
+    ImuErrors {
+        gyro_bias,
+        accel_bias: Vector3::zeros(),
+        gyro_noise_density: config.gyro_noise_density,
+        accel_noise_density: config.accel_noise_density,
+    }
+    .corrupt(&mut samples, rate, &mut ChaCha8Rng::seed_from_u64(7));
+    let mut filter = Eskf::new(config).unwrap();
+    let outcomes: Vec<_> = samples.iter().map(|s| filter.push_imu(s)).collect();
+    assert!(outcomes.contains(&ImuOutcome::Aligned));
+    assert_eq!(filter.phase(), FilterPhase::Navigating);
+    let estimate = filter.estimate();
+    let tilt_error = (estimate.attitude.inverse() * truth_q).angle();
+    let sigma = filter.sigmas();
+    assert!(tilt_error < 1e-3, "tilt error {tilt_error} rad");
+    for axis in 0..3 {
+        let sigma_bias = sigma[super::state::GYRO_BIAS + axis];
+        let error = (filter.gyro_bias() - gyro_bias)[axis];
+        assert!(sigma_bias < 1e-4, "gyro bias sigma {sigma_bias}");
+        assert!(error.abs() < 3.0 * sigma_bias, "gyro bias error {error}");
+    }
+    assert!(estimate.velocity.norm() < 0.01);
+    assert!(!estimate.degraded);
+}
+
+#[test]
+fn relative_pose_update_shrinks_only_the_observable_directions() {
+    let trajectory = ConstantRotation {
+        q0: UnitQuaternion::identity(),
+        rate: Vector3::zeros(),
+        velocity: Vector3::new(1.0, 0.0, 0.0),
+    };
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(&mut filter, &trajectory.imu_samples(0.0, 1.0, 100.0, false));
+    assert_eq!(filter.clone_pose(), Ok(1.0));
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(1.01, 2.0, 100.0, false),
+    );
+    let mut measurement = measured_relative_pose(
+        &trajectory,
+        1.0,
+        2.0,
+        1e-3,
+        1e-3,
+        &mut ChaCha8Rng::seed_from_u64(1),
+    );
+    measurement.rotation = None;
+    if let Some(translation) = &mut measurement.translation {
+        translation.observability = Observability::from_unobservable(&[Vector3::y(), Vector3::z()]);
+    }
+    let before = *filter.covariance();
+    let report = filter.update_relative_pose(&measurement).unwrap();
+    let after = *filter.covariance();
+    assert!(report.accepted);
+    assert_eq!(report.dof, 1);
+    assert!(after[(0, 0)] < 0.5 * before[(0, 0)]);
+    for i in [1, 2] {
+        assert!(((after[(i, i)] - before[(i, i)]) / before[(i, i)]).abs() < 1e-9);
+    }
+    // The clone is consumed.
+    assert_eq!(
+        filter.update_relative_pose(&measurement),
+        Err(UpdateError::NoClone { t_ref: 1.0 })
+    );
+}
+
+#[test]
+fn velocity_mode_fuses_body_velocity_and_rotation() {
+    let trajectory = ConstantRotation {
+        q0: UnitQuaternion::identity(),
+        rate: Vector3::new(0.0, 0.0, 0.2),
+        velocity: Vector3::new(1.0, 0.5, 0.0),
+    };
+    let config = FilterConfig {
+        relative_pose_update: RelativePoseUpdate::Velocity,
+        ..FilterConfig::default()
+    };
+    let mut filter = start_at_truth(config, &trajectory, 0.0);
+    feed(&mut filter, &trajectory.imu_samples(0.0, 2.0, 100.0, false));
+    let before = filter.sigmas();
+    let measurement = measured_relative_pose(
+        &trajectory,
+        1.5,
+        2.0,
+        1e-3,
+        1e-3,
+        &mut ChaCha8Rng::seed_from_u64(2),
+    );
+    let report = filter.update_relative_pose(&measurement).unwrap();
+    assert_eq!(report.kind, UpdateKind::RelativePoseVelocity);
+    assert!(report.accepted && report.dof == 6);
+    let after = filter.sigmas();
+    assert!(after[super::state::VEL] < 0.5 * before[super::state::VEL]);
+    assert!(filter.estimate().since_last_fused == 0.0);
+}
+
+#[test]
+fn the_prior_from_the_clone_matches_truth_and_its_covariance_matches_the_update() {
+    let trajectory = Circle::default();
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(&mut filter, &trajectory.imu_samples(0.0, 1.0, 200.0, true));
+    filter.clone_pose().unwrap();
+    feed(&mut filter, &trajectory.imu_samples(1.0, 1.5, 200.0, true));
+    let prior = filter.relative_pose(1.0, 1.5).unwrap();
+    let (a, b) = (trajectory.truth(1.0), trajectory.truth(1.5));
+    assert!((prior.translation - a.q.inverse_transform_vector(&(b.p - a.p))).norm() < 1e-6);
+    assert!((prior.rotation.inverse() * a.q.inverse() * b.q).angle() < 1e-8);
+    // Exact from the clone: position uncertainty grew since the clone, so it is positive.
+    assert!(prior.translation_covariance.trace() > 0.0);
+    let approximate = filter.relative_pose(1.2, 1.4).unwrap();
+    assert!(approximate.rotation_covariance.trace() > 0.0);
+    let mid = filter.pose_at(1.25).unwrap();
+    assert!((mid.p - trajectory.truth(1.25).p).norm() < 1e-4);
+    assert!(filter.pose_at(5.0).is_none());
+}
+
+#[test]
+fn bad_imu_input_is_counted_and_never_enters_the_state() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::identity(),
+    };
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    let samples = trajectory.imu_samples(0.01, 1.0, 100.0, false);
+    feed(&mut filter, &samples[..50]);
+    let nan = ImuSample::Rate {
+        t: 0.505,
+        gyro: Vector3::new(f64::NAN, 0.0, 0.0),
+        accel: Vector3::zeros(),
+    };
+    assert_eq!(
+        filter.push_imu(&nan),
+        ImuOutcome::Dropped(DropReason::NonFinite)
+    );
+    assert_eq!(
+        filter.push_imu(&samples[10]),
+        ImuOutcome::Dropped(DropReason::NonMonotonic)
+    );
+    // A one-second gap: not integrated, covariance grown, degraded and counted.
+    let sigma_before = filter.sigmas()[super::state::VEL];
+    let outcome = filter.push_imu(&samples[99]);
+    assert!(matches!(outcome, ImuOutcome::Gap { seconds } if (seconds - 0.5).abs() < 1e-9));
+    assert!(filter.sigmas()[super::state::VEL] > sigma_before);
+    let counters = filter.counters();
+    assert_eq!(
+        (
+            counters.non_finite,
+            counters.non_monotonic,
+            counters.imu_gaps
+        ),
+        (1, 1, 1)
+    );
+    assert!(filter.estimate().degraded);
+    assert!(filter.estimate().position.iter().all(|x| x.is_finite()));
+}
+
+#[test]
+fn an_overflowing_sample_resets_the_filter_with_a_reason() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::identity(),
+    };
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(0.01, 0.5, 100.0, false),
+    );
+    let before = *filter.state();
+    let absurd = ImuSample::Rate {
+        t: 0.51,
+        gyro: Vector3::new(1e300, 1e300, 0.0),
+        accel: Vector3::new(1e308, -1e308, 1e308),
+    };
+    assert_eq!(
+        filter.push_imu(&absurd),
+        ImuOutcome::Reset(ResetReason::NonFinitePropagation)
+    );
+    assert_eq!(filter.state(), &before);
+    assert_eq!(filter.estimate().reset_counter, 1);
+    assert_eq!(filter.last_reset(), Some(ResetReason::NonFinitePropagation));
+    let bad = RelativePose {
+        t_ref: 0.4,
+        t: 0.51,
+        rotation: None,
+        translation: Some(RelativeTranslation {
+            displacement: Vector3::new(f64::NAN, 0.0, 0.0),
+            covariance: Matrix3::identity(),
+            observability: Observability::full(),
+        }),
+    };
+    assert_eq!(
+        filter.update_relative_pose(&bad),
+        Err(UpdateError::NonFinite)
+    );
+}
+
+/// One seeded run: IMU with the filter's error model (initial errors, biases and scale
+/// factors drawn from the initial sigmas, white noise at the configured densities), odometry
+/// every 0.5 s; returns the NEES at the end.
+fn monte_carlo_run(seed: u64) -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let config = FilterConfig::default();
+    let rate = 100.0;
+    let trajectory = ConstantRotation {
+        q0: UnitQuaternion::from_euler_angles(0.05, 0.1, 0.4),
+        rate: Vector3::new(0.02, -0.03, 0.2),
+        velocity: Vector3::new(0.5, 0.2, 0.0),
+    };
+    let mut normal = |sigma: f64| -> Vector3<f64> {
+        Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)) * sigma
+    };
+    let deg = std::f64::consts::PI / 180.0;
+    let gyro_bias = normal(config.initial_sigma_gyro_bias);
+    let accel_bias = normal(config.initial_sigma_accel_bias);
+    let gyro_scale = normal(config.initial_sigma_gyro_scale);
+    let accel_scale = normal(config.initial_sigma_accel_scale);
+    let truth0 = trajectory.truth(0.0);
+    let tilt = config.initial_sigma_tilt_deg * deg;
+    let attitude_error = normal(1.0).component_mul(&Vector3::new(
+        tilt,
+        tilt,
+        config.initial_sigma_yaw_deg * deg,
+    ));
+    let state = NominalState {
+        p: truth0.p - normal(config.initial_sigma_position_m),
+        v: truth0.v - normal(config.initial_sigma_velocity_mps),
+        q: UnitQuaternion::from_scaled_axis(-attitude_error) * truth0.q,
+        ..NominalState::at_rest(truth0.q, Vector3::zeros())
+    };
+    let mut samples = trajectory.imu_samples(0.0, 5.0, rate, false);
+    for sample in &mut samples {
+        if let ImuSample::Rate { gyro, accel, .. } = sample {
+            *gyro = gyro.component_mul(&gyro_scale.add_scalar(1.0));
+            *accel = accel.component_mul(&accel_scale.add_scalar(1.0));
+        }
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed + 1000);
+    ImuErrors {
+        gyro_bias,
+        accel_bias,
+        gyro_noise_density: config.gyro_noise_density,
+        accel_noise_density: config.accel_noise_density,
+    }
+    .corrupt(&mut samples, rate, &mut rng);
+    let mut filter = Eskf::with_initial_state(config, 0.0, state).unwrap();
+    let mut epoch_ref = None;
+    for (k, sample) in samples.iter().enumerate() {
+        filter.push_imu(sample);
+        if k % 50 == 0 {
+            let t = sample.time();
+            if let Some(t_ref) = epoch_ref {
+                let m = measured_relative_pose(&trajectory, t_ref, t, 2e-3, 5e-3, &mut rng);
+                filter.update_relative_pose(&m).unwrap();
+            }
+            epoch_ref = Some(filter.clone_pose().unwrap());
+        }
+    }
+    filter.nees(&trajectory.truth(5.0)).unwrap().value
+}
+
+#[test]
+fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
+    let runs = 25;
+    let total: f64 = (0..runs).map(monte_carlo_run).sum();
+    let dof = 9 * runs as usize;
+    let (low, high) = (
+        chi_square_quantile(0.025, dof),
+        chi_square_quantile(0.975, dof),
+    );
+    assert!(
+        total > low && total < high,
+        "summed NEES {total} outside [{low}, {high}] for {dof} dof"
+    );
+}
+
+#[test]
+fn epochs_between_imu_samples_are_bridged_with_the_propagated_motion() {
+    let trajectory = Circle::default();
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(&mut filter, &trajectory.imu_samples(0.0, 1.0, 100.0, true));
+    filter.clone_pose().unwrap();
+    feed(&mut filter, &trajectory.imu_samples(1.0, 1.5, 100.0, true));
+    // The body moves 2.5 mm per ms; the odometer's epochs are a few ms off the IMU samples
+    // and its sigma is 0.1 mm, so an unbridged update would be gated out.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let measurement = measured_relative_pose(&trajectory, 0.996, 1.497, 1e-5, 1e-4, &mut rng);
+    let report = filter.update_relative_pose(&measurement).unwrap();
+    assert!(report.accepted, "NIS {}", report.nis);
+    assert!(report.nis < chi_square_quantile(0.999, 6));
+    assert!((filter.estimate().position - trajectory.truth(1.5).p).norm() < 1e-3);
+}

@@ -1,0 +1,167 @@
+//! The odometer's relative pose between epochs i (reference, earlier) and j (current) as a
+//! filter measurement: `C = C_j^i` rotates body-j vectors into body i, `dR` is body j's origin
+//! in body-i coordinates.
+//!
+//! Cloned model (global attitude errors, `R_i`, `R_j` body->NED at the two epochs):
+//! `Log(C_hat^T C) = R_j^T (dtheta_j - dtheta_i)` and
+//! `dR - R_i^T (p_j - p_i) = R_i^T (dp_j - dp_i) + R_i^T [p_j - p_i]x dtheta_i`.
+//! Velocity model (the paper's): `dR / (t_j - t_i) = R_i^T v_j` and the same rotation residual
+//! with the reference attitude taken as exact.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use super::history::Pose;
+use super::state::{NominalState, ATT, CLONE_ATT, CLONE_POS, POS, VEL};
+use super::update::{Jacobian3, Observability, Stacked};
+
+/// Rotation part of an odometry epoch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativeRotation {
+    /// Rotation vector of `C_j^i` (body j -> body i), rad.
+    pub rotation_vector: Vector3<f64>,
+    /// Its covariance, rad^2.
+    pub covariance: Matrix3<f64>,
+    pub observability: Observability,
+}
+
+/// Displacement part of an odometry epoch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativeTranslation {
+    /// Body j's origin in body-i coordinates, m.
+    pub displacement: Vector3<f64>,
+    /// Its covariance, m^2.
+    pub covariance: Matrix3<f64>,
+    pub observability: Observability,
+}
+
+/// One odometry epoch for the filter; either part may be missing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativePose {
+    /// Host time of the reference epoch i, s.
+    pub t_ref: f64,
+    /// Host time of the current epoch j, s.
+    pub t: f64,
+    pub rotation: Option<RelativeRotation>,
+    pub translation: Option<RelativeTranslation>,
+}
+
+impl RelativePose {
+    pub fn is_finite(&self) -> bool {
+        let finite =
+            |m: &Matrix3<f64>, v: &Vector3<f64>| m.iter().chain(v.iter()).all(|x| x.is_finite());
+        self.t_ref.is_finite()
+            && self.t.is_finite()
+            && self
+                .rotation
+                .is_none_or(|r| finite(&r.covariance, &r.rotation_vector))
+            && self
+                .translation
+                .is_none_or(|d| finite(&d.covariance, &d.displacement))
+    }
+
+    /// Predicted `C_j^i` and `dR` from two poses.
+    pub fn predict(reference: &Pose, current: &Pose) -> (UnitQuaternion<f64>, Vector3<f64>) {
+        (
+            reference.q.inverse() * current.q,
+            reference
+                .q
+                .inverse_transform_vector(&(current.p - reference.p)),
+        )
+    }
+
+    /// The same measurement re-expressed between `from` (the clone, near `t_ref`) and `to` (the
+    /// filter's current pose, near `t`), bridging the few milliseconds at each end with the
+    /// filter's own propagated motion between `at_ref` (pose at `t_ref`) and `from`, and
+    /// between `at_t` (pose at `t`) and `to`. Over such short bridges the IMU motion is far
+    /// more precise than the odometry, so the covariances are kept as reported.
+    pub fn bridged(&self, from: &Pose, at_ref: &Pose, at_t: &Pose, to: &Pose) -> Self {
+        let (c_front, d_front) = Self::predict(from, at_ref);
+        let (c_back, d_back) = Self::predict(at_t, to);
+        let measured_rotation = match &self.rotation {
+            Some(r) => UnitQuaternion::from_scaled_axis(r.rotation_vector),
+            None => Self::predict(at_ref, at_t).0,
+        };
+        Self {
+            t_ref: from.t,
+            t: to.t,
+            rotation: self.rotation.map(|r| RelativeRotation {
+                rotation_vector: (c_front * measured_rotation * c_back).scaled_axis(),
+                ..r
+            }),
+            translation: self.translation.map(|d| RelativeTranslation {
+                displacement: d_front + c_front * (d.displacement + measured_rotation * d_back),
+                ..d
+            }),
+        }
+    }
+
+    /// Measurement rows against the current state and the cloned reference pose.
+    pub fn cloned_rows(&self, reference: &Pose, current: &NominalState) -> Stacked {
+        let now = Pose {
+            t: self.t,
+            p: current.p,
+            q: current.q,
+        };
+        let (c_hat, d_hat) = Self::predict(reference, &now);
+        let r_i_t = reference.q.to_rotation_matrix().into_inner().transpose();
+        let r_j_t = current.q.to_rotation_matrix().into_inner().transpose();
+        let mut rows = Stacked::default();
+        if let Some(rotation) = &self.rotation {
+            let mut h = Jacobian3::zeros();
+            set(&mut h, ATT, &r_j_t);
+            set(&mut h, CLONE_ATT, &-r_j_t);
+            let residual = rotation_residual(&c_hat, &rotation.rotation_vector);
+            rows.push(&residual, &h, &rotation.covariance, &rotation.observability);
+        }
+        if let Some(translation) = &self.translation {
+            let mut h = Jacobian3::zeros();
+            set(&mut h, POS, &r_i_t);
+            set(&mut h, CLONE_POS, &-r_i_t);
+            set(
+                &mut h,
+                CLONE_ATT,
+                &(r_i_t * (current.p - reference.p).cross_matrix()),
+            );
+            let residual = translation.displacement - d_hat;
+            rows.push(
+                &residual,
+                &h,
+                &translation.covariance,
+                &translation.observability,
+            );
+        }
+        rows
+    }
+
+    /// The paper's rows: mean body velocity from the displacement and the rotation on the
+    /// current attitude, the reference pose (from the pose history) taken as exact.
+    pub fn velocity_rows(&self, reference: &Pose, current: &NominalState) -> Stacked {
+        let interval = self.t - self.t_ref;
+        let c_hat = reference.q.inverse() * current.q;
+        let r_i_t = reference.q.to_rotation_matrix().into_inner().transpose();
+        let r_j_t = current.q.to_rotation_matrix().into_inner().transpose();
+        let mut rows = Stacked::default();
+        if let Some(rotation) = &self.rotation {
+            let mut h = Jacobian3::zeros();
+            set(&mut h, ATT, &r_j_t);
+            let residual = rotation_residual(&c_hat, &rotation.rotation_vector);
+            rows.push(&residual, &h, &rotation.covariance, &rotation.observability);
+        }
+        if let Some(translation) = &self.translation {
+            let mut h = Jacobian3::zeros();
+            set(&mut h, VEL, &r_i_t);
+            let residual = translation.displacement / interval - r_i_t * current.v;
+            let noise = translation.covariance / (interval * interval);
+            rows.push(&residual, &h, &noise, &translation.observability);
+        }
+        rows
+    }
+}
+
+fn rotation_residual(predicted: &UnitQuaternion<f64>, measured: &Vector3<f64>) -> Vector3<f64> {
+    (predicted.inverse() * UnitQuaternion::from_scaled_axis(*measured)).scaled_axis()
+}
+
+fn set(h: &mut Jacobian3, column: usize, block: &Matrix3<f64>) {
+    h.fixed_view_mut::<3, 3>(0, column).copy_from(block);
+}

@@ -1,0 +1,258 @@
+//! The Kalman measurement update shared by every measurement (relative pose, zero velocity),
+//! with projection onto the observable directions and the chi-square innovation gate.
+
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+
+use super::consistency::chi_square_quantile;
+use super::covariance::symmetrise;
+use super::state::{Covariance, ErrorState, ATT, AUGMENTED};
+
+/// Up to six measurement rows: two three-row blocks (e.g. rotation and displacement).
+pub const ROWS: usize = 6;
+pub type Jacobian3 = SMatrix<f64, 3, AUGMENTED>;
+
+/// The directions of a three-dimensional measurement that the sensor actually observed.
+/// Columns `0..rank` of `basis` are an orthonormal basis of the observable subspace.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observability {
+    basis: Matrix3<f64>,
+    rank: usize,
+}
+
+impl Observability {
+    pub fn full() -> Self {
+        Self {
+            basis: Matrix3::identity(),
+            rank: 3,
+        }
+    }
+
+    /// Every direction except those spanned by `unobservable` (as `SolveError::UnderDetermined`
+    /// reports them; they need not be normalised or orthogonal).
+    pub fn from_unobservable(unobservable: &[Vector3<f64>]) -> Self {
+        let spanned = unobservable
+            .iter()
+            .filter(|d| d.norm() > 0.0 && d.iter().all(|x| x.is_finite()))
+            .map(|d| {
+                let u = d.normalize();
+                u * u.transpose()
+            })
+            .fold(Matrix3::zeros(), |sum, m| sum + m);
+        let eigen = spanned.symmetric_eigen();
+        let mut order = [0, 1, 2];
+        order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+        let rank = order
+            .iter()
+            .filter(|&&i| eigen.eigenvalues[i] < 1e-6)
+            .count();
+        let basis = Matrix3::from_columns(
+            &order.map(|i| -> Vector3<f64> { eigen.eigenvectors.column(i).into() }),
+        );
+        Self { basis, rank }
+    }
+
+    pub fn rank(&self) -> usize {
+        self.rank
+    }
+
+    pub fn observable_directions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
+        (0..self.rank).map(|i| self.basis.column(i).into())
+    }
+}
+
+/// A measurement in observable coordinates, padded to six rows: unused rows have zero
+/// Jacobian, zero innovation and unit variance uncorrelated with the rest, so they change
+/// neither the state, the covariance nor the NIS.
+#[derive(Debug, Clone, Copy)]
+pub struct Stacked {
+    innovation: SVector<f64, ROWS>,
+    jacobian: SMatrix<f64, ROWS, AUGMENTED>,
+    noise: SMatrix<f64, ROWS, ROWS>,
+    dof: usize,
+    next_row: usize,
+}
+
+impl Default for Stacked {
+    fn default() -> Self {
+        Self {
+            innovation: SVector::zeros(),
+            jacobian: SMatrix::zeros(),
+            noise: SMatrix::identity(),
+            dof: 0,
+            next_row: 0,
+        }
+    }
+}
+
+impl Stacked {
+    /// Adds a three-row block `innovation = H dx + noise`, keeping only its observable part.
+    pub fn push(
+        &mut self,
+        innovation: &Vector3<f64>,
+        jacobian: &Jacobian3,
+        noise: &Matrix3<f64>,
+        observability: &Observability,
+    ) {
+        let row = self.next_row;
+        let u = observability.basis;
+        let rank = observability.rank;
+        let projected_innovation = u.transpose() * innovation;
+        let projected_jacobian = u.transpose() * jacobian;
+        let projected_noise = u.transpose() * noise * u;
+        for i in 0..rank {
+            self.innovation[row + i] = projected_innovation[i];
+            self.jacobian
+                .row_mut(row + i)
+                .copy_from(&projected_jacobian.row(i));
+            for j in 0..rank {
+                self.noise[(row + i, row + j)] = projected_noise[(i, j)];
+            }
+        }
+        self.dof += rank;
+        self.next_row += 3;
+    }
+
+    pub fn dof(&self) -> usize {
+        self.dof
+    }
+
+    pub fn is_finite(&self) -> bool {
+        self.innovation.iter().all(|x| x.is_finite())
+            && self.jacobian.iter().all(|x| x.is_finite())
+            && self.noise.iter().all(|x| x.is_finite())
+    }
+
+    /// Innovation covariance `H P H^T + R` of the observable rows.
+    pub fn innovation_covariance(&self, p: &Covariance) -> SMatrix<f64, ROWS, ROWS> {
+        self.jacobian * p * self.jacobian.transpose() + self.noise
+    }
+}
+
+/// Result of the gate and, if it passed, of the update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Gated {
+    pub nis: f64,
+    pub dof: usize,
+    /// NIS threshold at the configured gate probability (infinite when the gate is off).
+    pub threshold: f64,
+    /// The error-state correction, `None` when the gate rejected the measurement.
+    pub correction: Option<ErrorState>,
+}
+
+/// The innovation covariance is not positive definite (a broken measurement covariance).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NotPositiveDefinite;
+
+/// NIS thresholds of the gate for 0..=6 observable rows, computed once per filter.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GateThresholds([f64; ROWS + 1]);
+
+impl GateThresholds {
+    pub fn new(gate_probability: f64) -> Self {
+        Self(std::array::from_fn(|dof| {
+            chi_square_quantile(gate_probability, dof)
+        }))
+    }
+}
+
+/// Gates on the NIS, then applies `K = P H^T S^-1`, `P <- P - K S K^T` and the ESKF reset of
+/// the attitude block (Sola eq. 287, `G = I - [dtheta / 2]x`). Leaves `p` untouched on rejection.
+pub fn apply(
+    p: &mut Covariance,
+    measurement: &Stacked,
+    gate: &GateThresholds,
+) -> Result<Gated, NotPositiveDefinite> {
+    let pht = *p * measurement.jacobian.transpose();
+    let s = measurement.jacobian * pht + measurement.noise;
+    let cholesky = s.cholesky().ok_or(NotPositiveDefinite)?;
+    let y = measurement.innovation;
+    let nis = cholesky.solve(&y).dot(&y);
+    let threshold = gate.0[measurement.dof];
+    let mut gated = Gated {
+        nis,
+        dof: measurement.dof,
+        threshold,
+        correction: None,
+    };
+    if measurement.dof == 0 || nis > threshold {
+        return Ok(gated);
+    }
+    let gain_t = cholesky.solve(&pht.transpose());
+    let dx = gain_t.transpose() * y;
+    *p -= pht * gain_t;
+    reset_attitude_error(p, &Vector3::new(dx[ATT], dx[ATT + 1], dx[ATT + 2]));
+    symmetrise(p);
+    gated.correction = Some(dx);
+    Ok(gated)
+}
+
+fn reset_attitude_error(p: &mut Covariance, dtheta: &Vector3<f64>) {
+    let g = Matrix3::identity() - (dtheta * 0.5).cross_matrix();
+    let rows = g * p.fixed_rows::<3>(ATT);
+    p.fixed_rows_mut::<3>(ATT).copy_from(&rows);
+    let columns = p.fixed_columns::<3>(ATT) * g.transpose();
+    p.fixed_columns_mut::<3>(ATT).copy_from(&columns);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::state::POS;
+    use super::*;
+
+    #[test]
+    fn unobservable_directions_leave_an_orthonormal_complement() {
+        let o = Observability::from_unobservable(&[Vector3::new(1.0, 1.0, 0.0)]);
+        assert_eq!(o.rank(), 2);
+        for d in o.observable_directions() {
+            assert!((d.norm() - 1.0).abs() < 1e-12);
+            assert!(d.dot(&Vector3::new(1.0, 1.0, 0.0)).abs() < 1e-9);
+        }
+        assert_eq!(Observability::from_unobservable(&[]).rank(), 3);
+        let plane = [Vector3::x(), Vector3::new(1.0, 1.0, 0.0)];
+        let o = Observability::from_unobservable(&plane);
+        assert_eq!(o.rank(), 1);
+        assert!((o.observable_directions().next().unwrap().z.abs() - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_position_fix_along_one_axis_shrinks_only_that_axis() {
+        let mut p = Covariance::identity();
+        let mut m = Stacked::default();
+        let mut h = Jacobian3::zeros();
+        h.fixed_view_mut::<3, 3>(0, POS)
+            .copy_from(&Matrix3::identity());
+        let along_x = Observability::from_unobservable(&[Vector3::y(), Vector3::z()]);
+        m.push(
+            &Vector3::new(0.5, 100.0, -100.0),
+            &h,
+            &(Matrix3::identity() * 0.01),
+            &along_x,
+        );
+        let gated = apply(&mut p, &m, &GateThresholds::new(1.0)).unwrap();
+        let dx = gated.correction.unwrap();
+        assert_eq!(gated.dof, 1);
+        assert!((dx[0] - 0.5 / 1.01).abs() < 1e-12);
+        assert_eq!((dx[1], dx[2]), (0.0, 0.0));
+        assert!((p[(0, 0)] - 0.01 / 1.01).abs() < 1e-12);
+        assert_eq!((p[(1, 1)], p[(2, 2)]), (1.0, 1.0));
+    }
+
+    #[test]
+    fn the_gate_rejects_a_large_innovation_and_leaves_the_covariance() {
+        let mut p = Covariance::identity();
+        let mut m = Stacked::default();
+        let mut h = Jacobian3::zeros();
+        h.fixed_view_mut::<3, 3>(0, POS)
+            .copy_from(&Matrix3::identity());
+        m.push(
+            &Vector3::new(10.0, 0.0, 0.0),
+            &h,
+            &Matrix3::identity(),
+            &Observability::full(),
+        );
+        let gated = apply(&mut p, &m, &GateThresholds::new(0.999)).unwrap();
+        assert!(gated.correction.is_none());
+        assert!((gated.nis - 50.0).abs() < 1e-9);
+        assert_eq!(p, Covariance::identity());
+    }
+}
