@@ -5,6 +5,7 @@
 //! the thread that writes them, the output files, and the systemd watchdog.
 
 pub mod config;
+pub mod in_process;
 pub mod link;
 pub mod mavlink_out;
 pub mod mavlink_task;
