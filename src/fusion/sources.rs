@@ -163,7 +163,7 @@ impl Unwrapper {
 }
 
 fn host_seconds(log_time_ns: u64) -> Option<f64> {
-    (log_time_ns != 0).then(|| log_time_ns as f64 * 1e-9)
+    (log_time_ns != 0).then_some(log_time_ns as f64 * 1e-9)
 }
 
 /// SCIP 2.0 scanner: `PP` geometry, `TM1` clock samples, `MD`/`ME`/`GD` scans.
