@@ -10,6 +10,7 @@ pub mod link;
 pub mod mavlink_out;
 pub mod mavlink_task;
 pub mod outputs;
+pub mod pipeline;
 pub mod recorder_thread;
 pub mod recording;
 pub mod watchdog;

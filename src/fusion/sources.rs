@@ -97,6 +97,17 @@ impl SensorDecoder {
             Self::Imu(d) => d.counts(),
         }
     }
+
+    /// The link dropped: a frame cut in half must not swallow the first reply after reconnect.
+    pub fn link_lost(&mut self) {
+        match self {
+            Self::Scanner(d) => d.decoder.reset(),
+            Self::Imu(d) => {
+                d.framer.clear();
+                d.last_counter = None;
+            }
+        }
+    }
 }
 
 /// Maps a device counter to host seconds: through the clock estimator when chunks carry host
