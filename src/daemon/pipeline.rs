@@ -90,6 +90,9 @@ pub trait Estimator {
 }
 
 /// What the pipeline hands its owner.
+// Handed straight to a callback and never stored in bulk, so boxing would only add an
+// allocation per estimate.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output<E> {
     Estimate(Estimate),
