@@ -121,6 +121,15 @@ impl<E: Estimator> Pipeline<E> {
         }
     }
 
+    /// Adds a sensor found in a recording without a configuration.
+    pub fn with_sensor(mut self, spec: SensorSpec) -> Self {
+        self.decoders.push(SensorDecoder::new(spec.setup));
+        self.specs.push(spec);
+        self.last_rx_ns.push(None);
+        self.stale.push(false);
+        self
+    }
+
     pub fn specs(&self) -> &[SensorSpec] {
         &self.specs
     }
