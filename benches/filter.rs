@@ -55,6 +55,21 @@ fn propagate_one_imu_sample(bencher: Bencher, delta: bool) {
         .bench_local_refs(|sample| filter.push_imu(sample));
 }
 
+/// Same, while an odometry epoch is open (27 states propagated instead of 21).
+#[divan::bench]
+fn propagate_with_open_clone(bencher: Bencher) {
+    let mut filter = moving_filter();
+    filter.push_imu(&sample(1, true));
+    filter.clone_pose().unwrap();
+    let mut k = 1;
+    bencher
+        .with_inputs(|| {
+            k += 1;
+            sample(k, true)
+        })
+        .bench_local_refs(|sample| filter.push_imu(sample));
+}
+
 #[divan::bench]
 fn relative_pose_update(bencher: Bencher) {
     let mut filter = moving_filter();

@@ -8,6 +8,24 @@ use super::state::{NominalState, GYRO_BIAS, VEL};
 use super::update::{Jacobian3, Observability, Stacked};
 use crate::sensors::ImuSample;
 
+/// Whether one sample looks like a body at rest: slow rate and gravity-sized specific force.
+pub fn looks_stationary(
+    sample: &ImuSample,
+    gravity: f64,
+    max_rate: f64,
+    max_force_error: f64,
+) -> bool {
+    let (rate, force) = rate_and_force(sample);
+    rate.norm() <= max_rate && (force.norm() - gravity).abs() <= max_force_error
+}
+
+fn rate_and_force(sample: &ImuSample) -> (Vector3<f64>, Vector3<f64>) {
+    match *sample {
+        ImuSample::Rate { gyro, accel, .. } => (gyro, accel),
+        ImuSample::Delta { dt, dq, dv, .. } => (dq.scaled_axis() / dt, dv / dt),
+    }
+}
+
 /// Means of the IMU-frame specific force and rate over the alignment window.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct StationaryMeans {
@@ -19,17 +37,10 @@ pub struct StationaryMeans {
 impl StationaryMeans {
     /// Adds one sample, weighted by the time it covers.
     pub fn add(&mut self, sample: &ImuSample, interval: f64) {
-        let (rate, force) = match *sample {
-            ImuSample::Rate { gyro, accel, .. } => (gyro, accel),
-            ImuSample::Delta { dt, dq, dv, .. } => (dq.scaled_axis() / dt, dv / dt),
-        };
+        let (rate, force) = rate_and_force(sample);
         self.force += force * interval;
         self.rate += rate * interval;
         self.weight += interval;
-    }
-
-    pub fn duration(&self) -> f64 {
-        self.weight
     }
 
     pub fn mean_rate(&self) -> Vector3<f64> {

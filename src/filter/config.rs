@@ -68,6 +68,12 @@ pub struct FilterConfig {
     /// Length of the stationary start, s, counted from the first IMU sample: zero-velocity and
     /// zero-rate updates run until then (the paper used 40 s). At least `coarse_alignment_s`.
     pub stationary_start_s: f64,
+    /// A sample turning faster than this (rad/s, before bias removal) is motion: it restarts
+    /// the gravity alignment, or ends the stationary start early.
+    pub stationary_max_rate: f64,
+    /// A sample whose specific-force magnitude differs from gravity by more than this (m/s^2)
+    /// is motion, as above.
+    pub stationary_max_force_error_mps2: f64,
     /// Interval of the zero-velocity / zero-rate updates during the stationary start, s.
     pub zupt_interval_s: f64,
     /// Sigma of the zero-velocity pseudo-measurement, m/s (vibration, hand shake).
@@ -111,6 +117,8 @@ impl Default for FilterConfig {
             initial_sigma_accel_scale: 0.005,
             coarse_alignment_s: 1.0,
             stationary_start_s: 40.0,
+            stationary_max_rate: 0.05,
+            stationary_max_force_error_mps2: 0.5,
             zupt_interval_s: 0.1,
             zupt_velocity_sigma_mps: 0.01,
             max_imu_gap_s: 0.05,
@@ -158,6 +166,11 @@ impl FilterConfig {
             ("initial_sigma_gyro_scale", self.initial_sigma_gyro_scale),
             ("initial_sigma_accel_scale", self.initial_sigma_accel_scale),
             ("coarse_alignment_s", self.coarse_alignment_s),
+            ("stationary_max_rate", self.stationary_max_rate),
+            (
+                "stationary_max_force_error_mps2",
+                self.stationary_max_force_error_mps2,
+            ),
             ("zupt_interval_s", self.zupt_interval_s),
             ("zupt_velocity_sigma_mps", self.zupt_velocity_sigma_mps),
             ("max_imu_gap_s", self.max_imu_gap_s),

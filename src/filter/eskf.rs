@@ -4,7 +4,7 @@
 use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use super::alignment::{zero_motion_rows, StationaryMeans};
+use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
 use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
@@ -18,6 +18,9 @@ use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
+
+/// Most covariance steps taken to bridge one IMU gap.
+const MAX_GAP_STEPS: f64 = 1000.0;
 
 /// Where the filter is in its start-up.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -56,6 +59,8 @@ pub enum DropReason {
     NonMonotonic,
     /// NaN or infinity in the time or the values, or a `Delta` interval that is not positive.
     NonFinite,
+    /// A `Delta` sample claiming an interval longer than `max_imu_gap_s`.
+    BadInterval,
 }
 
 /// Why the filter reset its covariance (and dropped any clone).
@@ -78,9 +83,13 @@ pub enum Degradation {
 pub struct FilterCounters {
     pub non_monotonic: u64,
     pub non_finite: u64,
+    pub bad_interval: u64,
     pub imu_gaps: u64,
     pub rejected_updates: u64,
     pub resets: u64,
+    /// Samples that looked like motion during the stationary start (each restarts the
+    /// alignment, or ends the stationary start early).
+    pub motion_during_start: u64,
 }
 
 /// Which measurement an update report is about.
@@ -234,6 +243,10 @@ impl Eskf {
                 self.counters.non_monotonic += 1;
                 return ImuOutcome::Dropped(DropReason::NonMonotonic);
             }
+            (_, ImuSample::Delta { dt, .. }) if *dt > self.config.max_imu_gap_s => {
+                self.counters.bad_interval += 1;
+                return ImuOutcome::Dropped(DropReason::BadInterval);
+            }
             (_, ImuSample::Delta { dt, .. }) => *dt,
             (Some(last), ImuSample::Rate { .. }) => t - last,
             (None, ImuSample::Rate { .. }) => 0.0,
@@ -249,8 +262,8 @@ impl Eskf {
             _ => None,
         });
         self.t = Some(t);
-        if since_last.max(interval) > self.config.max_imu_gap_s {
-            return self.bridge_gap(t, since_last.max(interval));
+        if since_last > self.config.max_imu_gap_s {
+            return self.bridge_gap(t, since_last);
         }
         match self.phase {
             FilterPhase::Aligning => self.align(t, sample, interval),
@@ -270,6 +283,12 @@ impl Eskf {
     }
 
     fn align(&mut self, t: f64, sample: &ImuSample, interval: f64) -> ImuOutcome {
+        if !self.looks_stationary(sample) {
+            self.counters.motion_during_start += 1;
+            self.means = StationaryMeans::default();
+            self.t_start = Some(t);
+            return ImuOutcome::Aligning;
+        }
         let start = *self.t_start.get_or_insert(t);
         self.means.add(sample, interval);
         if t - start < self.config.coarse_alignment_s {
@@ -333,7 +352,10 @@ impl Eskf {
             self.t_start = Some(t);
             return ImuOutcome::Gap { seconds };
         }
-        let steps = (seconds / self.config.max_imu_gap_s).ceil();
+        // Bounded work for any gap: past MAX_GAP_STEPS the steps get longer.
+        let steps = (seconds / self.config.max_imu_gap_s)
+            .ceil()
+            .min(MAX_GAP_STEPS);
         let step = seconds / steps;
         for _ in 0..steps as usize {
             let dynamics = self.dynamics.unwrap_or_else(|| self.rest_dynamics());
@@ -372,7 +394,24 @@ impl Eskf {
         )
     }
 
+    fn looks_stationary(&self, sample: &ImuSample) -> bool {
+        looks_stationary(
+            sample,
+            self.config.gravity_mps2,
+            self.config.stationary_max_rate,
+            self.config.stationary_max_force_error_mps2,
+        )
+    }
+
+    /// Zero-motion updates once per window; motion ends the stationary start early rather than
+    /// letting a false zero velocity into the state.
     fn stationary_updates(&mut self, t: f64, sample: &ImuSample, interval: f64) {
+        if !self.looks_stationary(sample) {
+            self.counters.motion_during_start += 1;
+            self.zero_motion = None;
+            self.phase = FilterPhase::Navigating;
+            return;
+        }
         let window = self.zero_motion.get_or_insert(ZeroMotionWindow {
             start: t - interval,
             rate_sum: Vector3::zeros(),
@@ -720,11 +759,6 @@ impl Eskf {
     /// Gyro bias in the IMU frame, rad/s.
     pub fn gyro_bias(&self) -> Vector3<f64> {
         self.state.gyro_bias
-    }
-    pub fn cloned_attitude_error_sigma(&self) -> Option<Vector3<f64>> {
-        self.clone.map(|_| {
-            Vector3::from_fn(|i, _| self.covariance[(CLONE_ATT + i, CLONE_ATT + i)].sqrt())
-        })
     }
 }
 

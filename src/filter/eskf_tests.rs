@@ -6,7 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::consistency::chi_square_quantile;
-use super::testkit::{Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
+use super::testkit::{self, Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
 use super::*;
 use crate::sensors::ImuSample;
 
@@ -285,9 +285,9 @@ fn an_overflowing_sample_resets_the_filter_with_a_reason() {
 /// One seeded run: IMU with the filter's error model (initial errors, biases and scale
 /// factors drawn from the initial sigmas, white noise at the configured densities), odometry
 /// every 0.5 s; returns the NEES at the end.
-fn monte_carlo_run(seed: u64) -> f64 {
+fn monte_carlo_run(config: &FilterConfig, seed: u64) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let config = FilterConfig::default();
+    let config = config.clone();
     let rate = 100.0;
     let trajectory = ConstantRotation {
         q0: UnitQuaternion::from_euler_angles(0.05, 0.1, 0.4),
@@ -346,10 +346,12 @@ fn monte_carlo_run(seed: u64) -> f64 {
     filter.nees(&trajectory.truth(5.0)).unwrap().value
 }
 
-#[test]
-fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
-    let runs = 25;
-    let total: f64 = (0..runs).map(monte_carlo_run).sum();
+fn check_summed_nees(config: &FilterConfig, runs: u64) {
+    let total: f64 = (0..runs).map(|seed| monte_carlo_run(config, seed)).sum();
+    eprintln!(
+        "mean NEES over {runs} runs: {} (9 expected)",
+        total / runs as f64
+    );
     let dof = 9 * runs as usize;
     let (low, high) = (
         chi_square_quantile(0.025, dof),
@@ -359,6 +361,28 @@ fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
         total > low && total < high,
         "summed NEES {total} outside [{low}, {high}] for {dof} dof"
     );
+}
+
+#[test]
+fn nees_of_a_seeded_monte_carlo_lies_in_its_95_percent_interval() {
+    check_summed_nees(&FilterConfig::default(), 25);
+}
+
+/// Initial errors of the size left by a stationary start (tilt 0.1 deg, gyro bias 1e-4
+/// rad/s, accelerometer bias 5 mm/s^2). With the larger pre-alignment defaults (2 deg,
+/// 0.1 deg/s, 0.05 m/s^2) the mean NEES over 400 runs is about 9.9: the linearisation of
+/// those initial errors makes the filter about 10 % optimistic in the first epochs.
+/// `cargo test --release -p ladar-odometer --lib filter::eskf_tests::nees_of_a_large -- --ignored --nocapture`
+#[test]
+#[ignore = "large Monte Carlo: run in release"]
+fn nees_of_a_large_monte_carlo_lies_in_its_95_percent_interval() {
+    let aligned = FilterConfig {
+        initial_sigma_tilt_deg: 0.1,
+        initial_sigma_gyro_bias: 1e-4,
+        initial_sigma_accel_bias: 0.005,
+        ..FilterConfig::default()
+    };
+    check_summed_nees(&aligned, 400);
 }
 
 #[test]
@@ -376,4 +400,134 @@ fn epochs_between_imu_samples_are_bridged_with_the_propagated_motion() {
     assert!(report.accepted, "NIS {}", report.nis);
     assert!(report.nis < chi_square_quantile(0.999, 6));
     assert!((filter.estimate().position - trajectory.truth(1.5).p).norm() < 1e-3);
+}
+
+#[test]
+fn motion_during_the_start_restarts_alignment_and_then_ends_the_stationary_start() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::from_euler_angles(0.1, 0.0, 0.0),
+    };
+    let config = FilterConfig {
+        stationary_start_s: 5.0,
+        ..FilterConfig::default()
+    };
+    let mut samples = trajectory.imu_samples(0.0, 4.0, 100.0, false);
+    let bump = |sample: &mut ImuSample| {
+        if let ImuSample::Rate { gyro, .. } = sample {
+            *gyro += Vector3::new(0.0, 0.0, 0.5);
+        }
+    };
+    bump(&mut samples[50]);
+    bump(&mut samples[300]);
+    let mut filter = Eskf::new(config).unwrap();
+    let outcomes: Vec<_> = samples.iter().map(|s| filter.push_imu(s)).collect();
+    // Aligned one second after the bump at 0.5 s, not one second after the start.
+    let aligned_at = outcomes.iter().position(|o| *o == ImuOutcome::Aligned);
+    assert_eq!(aligned_at, Some(150));
+    assert_eq!(filter.counters().motion_during_start, 2);
+    assert_eq!(filter.phase(), FilterPhase::Navigating);
+}
+
+mod hostile_input {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn value() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            8 => -20.0..20.0f64,
+            1 => Just(f64::NAN),
+            1 => Just(f64::INFINITY),
+            1 => prop_oneof![Just(1e300), Just(-1e300), Just(0.0)],
+        ]
+    }
+
+    fn vector() -> impl Strategy<Value = Vector3<f64>> {
+        (value(), value(), value()).prop_map(|(x, y, z)| Vector3::new(x, y, z))
+    }
+
+    fn sample() -> impl Strategy<Value = ImuSample> {
+        let time = prop_oneof![9 => 0.001..0.02f64, 1 => -0.05..0.3f64];
+        let rest = time.clone().prop_map(|step| ImuSample::Rate {
+            t: step,
+            gyro: Vector3::zeros(),
+            accel: Vector3::new(0.0, 0.0, -testkit::G),
+        });
+        prop_oneof![
+            6 => rest,
+            2 => (time.clone(), vector(), vector()).prop_map(|(step, gyro, accel)| ImuSample::Rate {
+                t: step,
+                gyro,
+                accel
+            }),
+            2 => (time, value(), vector(), vector()).prop_map(|(step, dt, axis, dv)| {
+                ImuSample::Delta {
+                    t: step,
+                    dt,
+                    dq: UnitQuaternion::from_scaled_axis(axis * 1e-3),
+                    dv,
+                }
+            }),
+        ]
+    }
+
+    /// Sample times are given as steps from the previous one; negative steps go backwards.
+    fn with_running_time(steps: Vec<ImuSample>) -> Vec<ImuSample> {
+        let mut t = 0.0;
+        steps
+            .into_iter()
+            .map(|s| {
+                t += s.time();
+                match s {
+                    ImuSample::Rate { gyro, accel, .. } => ImuSample::Rate { t, gyro, accel },
+                    ImuSample::Delta { dt, dq, dv, .. } => ImuSample::Delta { t, dt, dq, dv },
+                }
+            })
+            .collect()
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn any_imu_stream_and_measurement_leave_a_finite_state(
+            steps in proptest::collection::vec(sample(), 1..120),
+            displacement in vector(),
+            rotation in vector(),
+            variance in value(),
+        ) {
+            let config = FilterConfig {
+                coarse_alignment_s: 0.05,
+                stationary_start_s: 0.5,
+                ..FilterConfig::default()
+            };
+            let mut filter = Eskf::new(config).unwrap();
+            for (k, sample) in with_running_time(steps).iter().enumerate() {
+                filter.push_imu(sample);
+                if k % 10 == 0 {
+                    let t_ref = filter.clone_pose().ok();
+                    if let (Some(t_ref), Some(t)) = (t_ref, filter.time()) {
+                        let measurement = RelativePose {
+                            t_ref,
+                            t,
+                            rotation: Some(RelativeRotation {
+                                rotation_vector: rotation,
+                                covariance: Matrix3::identity() * variance,
+                                observability: Observability::from_unobservable(&[rotation]),
+                            }),
+                            translation: Some(RelativeTranslation {
+                                displacement,
+                                covariance: Matrix3::identity() * variance,
+                                observability: Observability::full(),
+                            }),
+                        };
+                        let _ = filter.update_relative_pose(&measurement);
+                    }
+                }
+                let estimate = filter.estimate();
+                prop_assert!(estimate.position.iter().all(|x| x.is_finite()));
+                prop_assert!(estimate.velocity.iter().all(|x| x.is_finite()));
+                prop_assert!(estimate.attitude.coords.iter().all(|x| x.is_finite()));
+                prop_assert!(filter.covariance().diagonal().iter().all(|x| x.is_finite()));
+            }
+        }
+    }
 }

@@ -1,4 +1,17 @@
 //! Strapdown mechanisation and the error-state EKF (section 4.3, DESIGN.md 4.9).
+//!
+//! How the fusion drives it (all times on the host clock, in time order):
+//! 1. `Eskf::new(config)`, then `push_imu(&sample)` for every IMU sample. The first
+//!    `coarse_alignment_s` align roll, pitch and gyro bias; zero-motion updates run until
+//!    `stationary_start_s`; `phase()` says where it is.
+//! 2. Deskew each beam with `pose_at(beam_time)`; give the odometer
+//!    `relative_pose(t_ref, t)` as its prior.
+//! 3. At every odometry epoch's reference time call `clone_pose()` (after feeding the IMU up
+//!    to about that time); when the epoch's solution arrives, feed the IMU up to its time and
+//!    call `update_relative_pose(&RelativePose { .. })`: it reports the NIS and whether the
+//!    gate accepted it, and consumes the clone. Missing parts are `None`; unobservable
+//!    directions come in as `Observability::from_unobservable(&directions)`.
+//! 4. `estimate()` fills the shared `Estimate` (the fusion sets `integrity`).
 
 pub mod alignment;
 pub mod config;

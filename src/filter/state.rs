@@ -81,7 +81,3 @@ impl NominalState {
             && self.q.coords.iter().all(|x| x.is_finite())
     }
 }
-
-pub fn block3(x: &ErrorState, at: usize) -> Vector3<f64> {
-    Vector3::new(x[at], x[at + 1], x[at + 2])
-}

@@ -96,12 +96,6 @@ impl ImuIncrement {
             dv: imu_to_body * dv_imu,
         }
     }
-
-    pub fn is_finite(&self) -> bool {
-        self.dt.is_finite()
-            && self.dtheta.iter().all(|x| x.is_finite())
-            && self.dv.iter().all(|x| x.is_finite())
-    }
 }
 
 /// A bias- and scale-corrected increment, in the IMU frame (for the Jacobians) and the body

@@ -156,7 +156,9 @@ impl GateThresholds {
 }
 
 /// Gates on the NIS, then applies `K = P H^T S^-1`, `P <- P - K S K^T` and the ESKF reset of
-/// the attitude block (Sola eq. 287, `G = I - [dtheta / 2]x`). Leaves `p` untouched on rejection.
+/// the attitude block: for a global error `Exp(dtheta_true) = Exp(dtheta) Exp(dtheta_hat)^-1`
+/// to second order, so `G = I + [dtheta_hat / 2]x` (Sola sec. 7, the sign flipped from the
+/// local-error eq. 287). Leaves `p` untouched on rejection.
 pub fn apply(
     p: &mut Covariance,
     measurement: &Stacked,
@@ -187,7 +189,7 @@ pub fn apply(
 }
 
 fn reset_attitude_error(p: &mut Covariance, dtheta: &Vector3<f64>) {
-    let g = Matrix3::identity() - (dtheta * 0.5).cross_matrix();
+    let g = Matrix3::identity() + (dtheta * 0.5).cross_matrix();
     let rows = g * p.fixed_rows::<3>(ATT);
     p.fixed_rows_mut::<3>(ATT).copy_from(&rows);
     let columns = p.fixed_columns::<3>(ATT) * g.transpose();

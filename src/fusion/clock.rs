@@ -17,6 +17,8 @@
 
 use std::collections::VecDeque;
 
+use thiserror::Error;
+
 /// Parameters of one sensor clock.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClockConfig {
@@ -63,6 +65,62 @@ impl ClockConfig {
     }
 }
 
+/// A clock configuration the estimator cannot work with.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
+#[error("clock {key} = {value} is invalid: {fix}")]
+pub struct ClockConfigError {
+    pub key: &'static str,
+    pub value: f64,
+    pub fix: &'static str,
+}
+
+impl ClockConfig {
+    pub fn validate(&self) -> Result<(), ClockConfigError> {
+        let checks = [
+            (
+                "tick_hz",
+                self.tick_hz,
+                self.tick_hz > 0.0 && self.tick_hz.is_finite(),
+                "set the counter rate in Hz",
+            ),
+            (
+                "modulus",
+                self.modulus as f64,
+                (2..=1 << 62).contains(&self.modulus),
+                "set the wrap value, 2 to 2^62",
+            ),
+            (
+                "bin_s",
+                self.bin_s,
+                self.bin_s > 0.0 && self.bin_s.is_finite(),
+                "set a positive bin width in s",
+            ),
+            (
+                "window_bins",
+                self.window_bins as f64,
+                self.window_bins >= 2,
+                "keep at least 2 bins",
+            ),
+            (
+                "max_jump_s",
+                self.max_jump_s,
+                self.max_jump_s > 0.0,
+                "set a positive jump limit in s",
+            ),
+            (
+                "max_drift",
+                self.max_drift,
+                (0.0..0.1).contains(&self.max_drift),
+                "set a drift limit below 0.1",
+            ),
+        ];
+        match checks.iter().find(|(_, _, ok, _)| !ok) {
+            Some(&(key, value, _, fix)) => Err(ClockConfigError { key, value, fix }),
+            None => Ok(()),
+        }
+    }
+}
+
 /// The least-delayed packet of one bin: device time (relative to the first packet) and
 /// `host - device`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -104,19 +162,24 @@ struct Origin {
 }
 
 impl ClockEstimator {
-    pub fn new(config: ClockConfig) -> Self {
-        Self {
+    pub fn new(config: ClockConfig) -> Result<Self, ClockConfigError> {
+        config.validate()?;
+        Ok(Self {
             bins: VecDeque::with_capacity(config.window_bins + 1),
             config,
             origin: None,
             fit: None,
             restarts: 0,
-        }
+        })
     }
 
     /// Takes one packet (raw counter value, host receive time in s) and returns the host time
-    /// of its device instant under the updated fit.
-    pub fn observe(&mut self, raw_ticks: u64, host_s: f64) -> f64 {
+    /// of its device instant under the updated fit; `None` (packet ignored) for a non-finite
+    /// host time.
+    pub fn observe(&mut self, raw_ticks: u64, host_s: f64) -> Option<f64> {
+        if !host_s.is_finite() {
+            return None;
+        }
         let raw = raw_ticks % self.config.modulus;
         let ticks = match self.origin {
             None => 0,
@@ -139,7 +202,7 @@ impl ClockEstimator {
         });
         let x = ticks as f64 / self.config.tick_hz;
         self.add_minimum(Minimum { x, y: host_s - x });
-        self.host_time(x)
+        Some(self.host_time(x))
     }
 
     /// Host time of a device counter value near the latest packet (within half a wrap).
@@ -259,7 +322,7 @@ mod tests {
         let latency = Exp::new(1.0 / 0.002).unwrap();
         let (offset, drift) = (1234.5, 50e-6);
         let host_of_device = |x: f64| offset + (1.0 + drift) * x;
-        let mut estimator = ClockEstimator::new(config);
+        let mut estimator = ClockEstimator::new(config).unwrap();
         let start_ticks = config.modulus - ticks_before_wrap;
         let mut worst: f64 = 0.0;
         let packets = (120.0 * rate_hz) as usize;
@@ -273,7 +336,7 @@ mod tests {
             let raw = (start_ticks + ticks_since_start) % config.modulus;
             let tick_instant = ticks_since_start as f64 / config.tick_hz;
             let host = host_of_device(device_s) + rng.sample(latency);
-            let mapped = estimator.observe(raw, host);
+            let mapped = estimator.observe(raw, host).unwrap();
             let truth = host_of_device(tick_instant);
             if device_s > 5.0 {
                 worst = worst.max((mapped - truth).abs());
@@ -282,6 +345,7 @@ mod tests {
             }
         }
         assert_eq!(estimator.restarts(), 0);
+        eprintln!("worst mapping error {:.1} us", worst * 1e6);
         let fit = estimator.fit().unwrap();
         assert!((fit.drift - drift).abs() < 20e-6, "drift {}", fit.drift);
         worst
@@ -308,21 +372,53 @@ mod tests {
 
     #[test]
     fn a_counter_reset_restarts_the_estimate() {
-        let mut estimator = ClockEstimator::new(ClockConfig::scip());
+        let mut estimator = ClockEstimator::new(ClockConfig::scip()).unwrap();
         for k in 0..100u64 {
             estimator.observe(5_000_000 + k * 25, 10.0 + k as f64 * 0.025);
         }
-        let mapped = estimator.observe(0, 12.5);
+        let mapped = estimator.observe(0, 12.5).unwrap();
         assert_eq!(estimator.restarts(), 1);
         assert!((mapped - 12.5).abs() < 1e-9);
-        assert!(ClockEstimator::new(ClockConfig::scip()).map(5).is_none());
+        assert!(ClockEstimator::new(ClockConfig::scip())
+            .unwrap()
+            .map(5)
+            .is_none());
+    }
+
+    #[test]
+    fn bad_configurations_and_host_times_are_refused() {
+        let config = ClockConfig {
+            tick_hz: 0.0,
+            ..ClockConfig::scip()
+        };
+        let message = ClockEstimator::new(config).unwrap_err().to_string();
+        assert!(
+            message.starts_with("clock tick_hz = 0 is invalid"),
+            "{message}"
+        );
+        let mut estimator = ClockEstimator::new(ClockConfig::scip()).unwrap();
+        assert_eq!(estimator.observe(10, f64::NAN), None);
+        assert!(estimator.map(10).is_none());
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn any_packet_sequence_maps_to_finite_times(
+            packets in proptest::collection::vec((0u64..u64::MAX, -1e6..1e6f64), 1..200)
+        ) {
+            let mut estimator = ClockEstimator::new(ClockConfig::xsens_600_series()).unwrap();
+            for (raw, host) in packets {
+                let mapped = estimator.observe(raw, host).unwrap();
+                proptest::prop_assert!(mapped.is_finite());
+            }
+        }
     }
 
     #[test]
     fn a_small_backward_step_is_not_a_wrap() {
-        let mut estimator = ClockEstimator::new(ClockConfig::xsens_100_series());
-        let a = estimator.observe(1_000, 5.0);
-        let b = estimator.observe(600, 5.001);
+        let mut estimator = ClockEstimator::new(ClockConfig::xsens_100_series()).unwrap();
+        let a = estimator.observe(1_000, 5.0).unwrap();
+        let b = estimator.observe(600, 5.001).unwrap();
         // Unwrapped forward this would be a day later.
         assert!((b - a).abs() < 0.1, "{a} {b}");
         let mapped_back = estimator.map(1_000).unwrap() - estimator.map(600).unwrap();

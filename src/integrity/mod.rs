@@ -1,1 +1,24 @@
-//! Parity-space fault detection and exclusion with protection levels (sections 3.3 to 3.5).
+//! Parity-space fault detection and exclusion with protection levels (sections 3.3 to 3.5,
+//! eqs 29-44): each odometry solve is tested for a moving plane, the culprit is excluded when
+//! the redundancy allows it, and the largest error an undetected fault could cause is reported.
+//!
+//! Stages, one a file: `thresholds` (risk budgets to gamma and chi-square thresholds),
+//! `parity` (parity space, per-plane w-tests, minimum detectable biases), `protection`
+//! (protection levels), `exclusion` (the detect-exclude-retest loop over one solve or an epoch).
+
+mod config;
+mod exclusion;
+mod parity;
+mod protection;
+mod thresholds;
+
+pub use config::{ConfigError, IntegrityConfig, MIN_PLANES_DISPLACEMENT, MIN_PLANES_ROTATION};
+pub use exclusion::{
+    without_planes, EpochReport, IntegrityMonitor, Resolver, SolveKind, SolveReport,
+};
+pub use parity::{parity_space, ParitySpace, PlaneTest, SolveTest, Untestable};
+pub use protection::ProtectionLevels;
+pub use thresholds::{chi_square_upper_quantile, normal_upper_quantile, Thresholds};
+
+#[cfg(test)]
+mod tests;

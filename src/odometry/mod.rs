@@ -1,1 +1,502 @@
-//! The geometry core of the paper, one stage per file (sections 2 to 3.2).
+//! The geometry core of the paper, one stage per file (sections 2 to 3.2): `deskew` -> `lines`
+//! -> `planes` (+ `uncertainty`) -> `matching` -> `rotation` and `displacement`.
+//!
+//! Conventions (contract with integrity and the filter): epoch i is the reference (earlier) and
+//! epoch j the current one. The relative pose is `(C, dR)`: `C = C_j^i` rotates body-j vectors
+//! into body i (`C n_j = n_i`, eq 3) and `dR` is body j's origin in body-i axes, so that
+//! `rho_i - rho_j = n_i . dR` (eq 1). Rotation solutions report `x` as the rotation vector
+//! (scaled axis) of C, with covariance of a left perturbation in body-i axes.
+//!
+//! An [`Odometer`] holds every buffer the stages need, so that in steady state extraction and
+//! matching allocate nothing; only the returned solutions (and match list) are new each epoch.
+
+pub mod deskew;
+pub mod displacement;
+pub mod lines;
+pub mod matching;
+pub mod planes;
+pub mod rotation;
+pub mod synthetic;
+pub mod uncertainty;
+
+use crate::estimation::{Solution, SolveError};
+use crate::sensors::{Mount, Scan, ScannerGeometry};
+use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
+use lines::{LineExtractor, LineParameters, Segment};
+use matching::{Matcher, PlaneMatch};
+use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
+use planes::{Plane, PlaneExtractor, PlaneParameters, ScanLines};
+use rotation::{solve_rotation, RotationParameters};
+use serde::{Deserialize, Serialize};
+use std::fmt;
+
+/// Settings of the geometry core. Every key has a default; unknown keys are refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OdometryConfig {
+    /// Ranging noise (1 sigma, metres) used for scanners whose setup gives none. 0.01 m: the
+    /// paper's simulation and the UTM-30LX's +-30 mm read as 3 sigma.
+    pub range_sigma_m: f64,
+    /// Borges-Aldon breakpoint angle lambda, degrees: consecutive points further apart than a
+    /// surface seen at this incidence could put them start a new segment.
+    pub breakpoint_lambda_deg: f64,
+    /// Noise allowance added to the breakpoint distance, in ranging sigmas.
+    pub breakpoint_noise_sigmas: f64,
+    /// A segment is split where a point lies further than this from its chord, metres.
+    pub split_distance_m: f64,
+    /// Fewest points a line may have.
+    pub min_line_points: usize,
+    /// Shortest line kept, metres.
+    pub min_line_length_m: f64,
+    /// Smallest distance of the second line's centre from the first line, metres; closer pairs
+    /// give an ill-defined normal (eq 25's denominator).
+    pub min_line_separation_m: f64,
+    /// A second line counts as coplanar if it tilts out of the plane by at most this many
+    /// predicted sigmas.
+    pub coplanarity_gate_sigmas: f64,
+    /// Keep only planes confirmed by a third line (fictitious planes, paper Fig. 3).
+    pub require_third_line: bool,
+    /// Also build planes from two (nearly) parallel lines, as the paper does. Parallel lines
+    /// are always coplanar, so their coplanarity proves nothing: a floor line and a parallel
+    /// ceiling line make a fictitious plane (Fig. 3). Off by default; turn on for scanners whose
+    /// planes are parallel by construction (e.g. two scanners pitched about the same axis facing
+    /// a wall square on). Crossing pairs are still preferred when lines compete.
+    pub accept_parallel_lines: bool,
+    /// Planes whose normal sigma exceeds this, degrees, are dropped: they add little and their
+    /// error is no longer linear in the noise (predicted sigmas turn optimistic).
+    pub max_sigma_normal_deg: f64,
+    /// Chi-square gate (3 degrees of freedom) on a plane match under the prior. 16.27 is the
+    /// 99.9 % point.
+    pub match_gate_chi2: f64,
+    /// Most Gauss-Newton steps of the rotation solve.
+    pub rotation_max_iterations: usize,
+    /// The rotation solve stops once a correction is below this, radians.
+    pub rotation_tolerance_rad: f64,
+}
+
+impl Default for OdometryConfig {
+    fn default() -> Self {
+        Self {
+            range_sigma_m: 0.01,
+            breakpoint_lambda_deg: 10.0,
+            breakpoint_noise_sigmas: 3.0,
+            split_distance_m: 0.05,
+            min_line_points: 10,
+            min_line_length_m: 0.3,
+            min_line_separation_m: 0.15,
+            coplanarity_gate_sigmas: 5.0,
+            require_third_line: false,
+            accept_parallel_lines: false,
+            max_sigma_normal_deg: 0.5,
+            match_gate_chi2: 16.27,
+            rotation_max_iterations: 10,
+            rotation_tolerance_rad: 1e-10,
+        }
+    }
+}
+
+/// A setting outside its meaningful range.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigError {
+    pub key: &'static str,
+    pub value: f64,
+    pub expected: &'static str,
+}
+
+impl fmt::Display for ConfigError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "odometry config: {} = {} is invalid; set it {}",
+            self.key, self.value, self.expected
+        )
+    }
+}
+
+impl std::error::Error for ConfigError {}
+
+impl OdometryConfig {
+    /// Checks every key, naming the first bad one.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let positive = "to a finite number above 0";
+        let checks: [(&'static str, f64, bool, &'static str); 12] = [
+            (
+                "range_sigma_m",
+                self.range_sigma_m,
+                self.range_sigma_m > 0.0,
+                positive,
+            ),
+            (
+                "breakpoint_lambda_deg",
+                self.breakpoint_lambda_deg,
+                self.breakpoint_lambda_deg > 0.0 && self.breakpoint_lambda_deg < 90.0,
+                "between 0 and 90 degrees",
+            ),
+            (
+                "breakpoint_noise_sigmas",
+                self.breakpoint_noise_sigmas,
+                self.breakpoint_noise_sigmas >= 0.0,
+                "to 0 or more",
+            ),
+            (
+                "split_distance_m",
+                self.split_distance_m,
+                self.split_distance_m > 0.0,
+                positive,
+            ),
+            (
+                "min_line_points",
+                self.min_line_points as f64,
+                self.min_line_points >= 3,
+                "to 3 or more",
+            ),
+            (
+                "min_line_length_m",
+                self.min_line_length_m,
+                self.min_line_length_m > 0.0,
+                positive,
+            ),
+            (
+                "min_line_separation_m",
+                self.min_line_separation_m,
+                self.min_line_separation_m > 0.0,
+                positive,
+            ),
+            (
+                "coplanarity_gate_sigmas",
+                self.coplanarity_gate_sigmas,
+                self.coplanarity_gate_sigmas > 0.0,
+                positive,
+            ),
+            (
+                "max_sigma_normal_deg",
+                self.max_sigma_normal_deg,
+                self.max_sigma_normal_deg > 0.0,
+                positive,
+            ),
+            (
+                "match_gate_chi2",
+                self.match_gate_chi2,
+                self.match_gate_chi2 > 0.0,
+                positive,
+            ),
+            (
+                "rotation_max_iterations",
+                self.rotation_max_iterations as f64,
+                self.rotation_max_iterations >= 1,
+                "to 1 or more",
+            ),
+            (
+                "rotation_tolerance_rad",
+                self.rotation_tolerance_rad,
+                self.rotation_tolerance_rad > 0.0,
+                positive,
+            ),
+        ];
+        match checks
+            .into_iter()
+            .find(|(_, value, ok, _)| !(*ok && value.is_finite()))
+        {
+            Some((key, value, _, expected)) => Err(ConfigError {
+                key,
+                value,
+                expected,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Line-extraction parameters for a scanner with this ranging sigma.
+    pub fn line_parameters(&self, range_sigma_m: f64) -> LineParameters {
+        LineParameters {
+            breakpoint_lambda_rad: self.breakpoint_lambda_deg.to_radians(),
+            breakpoint_noise_m: self.breakpoint_noise_sigmas * range_sigma_m,
+            split_distance_m: self.split_distance_m,
+            min_points: self.min_line_points,
+            min_length_m: self.min_line_length_m,
+        }
+    }
+
+    pub fn plane_parameters(&self) -> PlaneParameters {
+        PlaneParameters {
+            min_separation_m: self.min_line_separation_m,
+            coplanarity_gate_sigmas: self.coplanarity_gate_sigmas,
+            require_third_line: self.require_third_line,
+            accept_parallel_lines: self.accept_parallel_lines,
+            max_sigma_normal_rad: self.max_sigma_normal_deg.to_radians(),
+        }
+    }
+
+    pub fn rotation_parameters(&self) -> RotationParameters {
+        RotationParameters {
+            max_iterations: self.rotation_max_iterations,
+            tolerance_rad: self.rotation_tolerance_rad,
+        }
+    }
+}
+
+/// One scanner as the core needs it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScannerSetup {
+    pub geometry: ScannerGeometry,
+    pub mount: Mount,
+    /// Ranging noise, 1 sigma, metres; `None` takes `OdometryConfig::range_sigma_m`.
+    pub range_sigma_m: Option<f64>,
+}
+
+/// Relative pose between epochs i and j with its uncertainty: a prior (from the IMU) or a result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RelativePose {
+    /// C = C_j^i, rotating body-j vectors into body i.
+    pub rotation: UnitQuaternion<f64>,
+    /// dR: body j's origin in body-i axes, metres.
+    pub translation: Vector3<f64>,
+    /// Covariance of a left rotation perturbation in body-i axes, rad^2.
+    pub rotation_covariance: Matrix3<f64>,
+    /// Covariance of dR, m^2.
+    pub translation_covariance: Matrix3<f64>,
+}
+
+impl RelativePose {
+    /// No motion, known to the given 1-sigma angle and distance.
+    pub fn stationary(sigma_rad: f64, sigma_m: f64) -> Self {
+        Self {
+            rotation: UnitQuaternion::identity(),
+            translation: Vector3::zeros(),
+            rotation_covariance: Matrix3::identity() * sigma_rad.powi(2),
+            translation_covariance: Matrix3::identity() * sigma_m.powi(2),
+        }
+    }
+}
+
+/// The planes of one epoch in the body frame at its reference time.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EpochPlanes {
+    /// Reference time of the epoch, seconds.
+    pub t_ref: f64,
+    pub planes: Vec<Plane>,
+    /// Readings dropped per scanner, by reason.
+    pub dropped: [DroppedReadings; 2],
+    /// Valid readings per scanner.
+    pub readings: [usize; 2],
+    /// Lines found per scanner.
+    pub lines: [usize; 2],
+}
+
+/// The outcome of one epoch pair: matches and both solves, re-solvable with exclusions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OdometryEpoch {
+    pub matches: Vec<PlaneMatch>,
+    pub prior: RelativePose,
+    /// Indices into `matches` left out of both solves.
+    pub excluded: Vec<usize>,
+    /// `x` = rotation vector of C_j^i; see `rotation`.
+    pub rotation: Result<Solution, SolveError>,
+    /// `x` = dR; see `displacement`.
+    pub displacement: Result<Solution, SolveError>,
+}
+
+impl OdometryEpoch {
+    /// The solved relative pose, when both solves succeeded.
+    pub fn relative_pose(&self) -> Option<RelativePose> {
+        let rotation = self.rotation.as_ref().ok()?;
+        let displacement = self.displacement.as_ref().ok()?;
+        Some(RelativePose {
+            rotation: UnitQuaternion::from_scaled_axis(rotation.x),
+            translation: displacement.x,
+            rotation_covariance: rotation.covariance,
+            translation_covariance: displacement.covariance,
+        })
+    }
+}
+
+/// The geometry core with its reusable buffers.
+#[derive(Debug)]
+pub struct Odometer {
+    config: OdometryConfig,
+    scanners: [ScannerSetup; 2],
+    deskewers: [Deskewer; 2],
+    beams: [Vec<Beam>; 2],
+    segments: [Vec<Segment>; 2],
+    lines: LineExtractor,
+    planes: PlaneExtractor,
+    matcher: Matcher,
+}
+
+impl Odometer {
+    pub fn new(scanners: [ScannerSetup; 2], config: OdometryConfig) -> Result<Self, ConfigError> {
+        config.validate()?;
+        for scanner in &scanners {
+            if let Some(sigma) = scanner.range_sigma_m {
+                if !(sigma > 0.0 && sigma.is_finite()) {
+                    return Err(ConfigError {
+                        key: "range_sigma_m",
+                        value: sigma,
+                        expected: "to a finite number above 0",
+                    });
+                }
+            }
+        }
+        Ok(Self {
+            config,
+            scanners,
+            deskewers: Default::default(),
+            beams: Default::default(),
+            segments: Default::default(),
+            lines: LineExtractor::default(),
+            planes: PlaneExtractor::default(),
+            matcher: Matcher::default(),
+        })
+    }
+
+    pub fn config(&self) -> &OdometryConfig {
+        &self.config
+    }
+
+    /// Beams of scanner `k` from the latest extraction (for inspection and plotting).
+    pub fn beams(&self, k: usize) -> &[Beam] {
+        &self.beams[k]
+    }
+
+    /// Lines of scanner `k` from the latest extraction, indexing `beams(k)`.
+    pub fn lines(&self, k: usize) -> &[Segment] {
+        &self.segments[k]
+    }
+
+    fn range_sigma(&self, scanner: usize) -> f64 {
+        self.scanners[scanner]
+            .range_sigma_m
+            .unwrap_or(self.config.range_sigma_m)
+    }
+
+    /// Planes of one epoch: `scans[k]` is scanner k's scan; `pose_at(t)` is the body pose at
+    /// time t relative to the body at `t_ref` (identity when stationary).
+    pub fn extract(&mut self, scans: [&Scan; 2], t_ref: f64, pose_at: PoseAt<'_>) -> EpochPlanes {
+        let mut out = EpochPlanes::default();
+        self.extract_into(scans, t_ref, pose_at, &mut out);
+        out
+    }
+
+    /// As `extract`, reusing `out`'s storage (no allocation once it has grown).
+    pub fn extract_into(
+        &mut self,
+        scans: [&Scan; 2],
+        t_ref: f64,
+        pose_at: PoseAt<'_>,
+        out: &mut EpochPlanes,
+    ) {
+        out.t_ref = t_ref;
+        for (k, scan) in scans.into_iter().enumerate() {
+            let setup = &self.scanners[k];
+            out.dropped[k] = self.deskewers[k].deskew(
+                scan,
+                &setup.geometry,
+                &setup.mount,
+                pose_at,
+                &mut self.beams[k],
+            );
+            out.readings[k] = self.beams[k].len();
+            let parameters = self.config.line_parameters(self.range_sigma(k));
+            self.lines
+                .extract(&self.beams[k], &parameters, &mut self.segments[k]);
+            out.lines[k] = self.segments[k].len();
+        }
+        let sigmas = [self.range_sigma(0), self.range_sigma(1)];
+        let scan_lines = [0, 1].map(|k| ScanLines {
+            segments: &self.segments[k],
+            beams: &self.beams[k],
+            range_sigma: sigmas[k],
+        });
+        self.planes
+            .extract(scan_lines, &self.config.plane_parameters(), &mut out.planes);
+    }
+
+    /// Matches `current` (epoch j) to `previous` (epoch i) under `prior` and solves both.
+    pub fn solve(
+        &mut self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        prior: &RelativePose,
+    ) -> OdometryEpoch {
+        let mut matches = Vec::new();
+        self.matcher.match_planes(
+            &previous.planes,
+            &current.planes,
+            prior,
+            self.config.match_gate_chi2,
+            &mut matches,
+        );
+        self.solve_matched(previous, current, matches, prior, &[])
+    }
+
+    /// Solves `epoch`'s matches again without the matches listed in `excluded`.
+    pub fn resolve(
+        &self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        epoch: &OdometryEpoch,
+        excluded: &[usize],
+    ) -> OdometryEpoch {
+        self.solve_matched(
+            previous,
+            current,
+            epoch.matches.clone(),
+            &epoch.prior,
+            excluded,
+        )
+    }
+
+    fn solve_matched(
+        &self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        matches: Vec<PlaneMatch>,
+        prior: &RelativePose,
+        excluded: &[usize],
+    ) -> OdometryEpoch {
+        let (i, j) = (&previous.planes, &current.planes);
+        let rotation = solve_rotation(
+            i,
+            j,
+            &matches,
+            &prior.rotation,
+            excluded,
+            &self.config.rotation_parameters(),
+        );
+        let solved_rotation = rotation
+            .as_ref()
+            .ok()
+            .map(|s| UnitQuaternion::from_scaled_axis(s.x));
+        let displacement = displacement::solve_displacement(
+            i,
+            j,
+            &matches,
+            solved_rotation.as_ref(),
+            &prior.translation,
+            excluded,
+        );
+        OdometryEpoch {
+            matches,
+            prior: *prior,
+            excluded: excluded.to_vec(),
+            rotation,
+            displacement,
+        }
+    }
+}
+
+/// Orthonormal basis (3x2) of the plane perpendicular to the unit vector `n`.
+pub(crate) fn tangent_basis(n: &Vector3<f64>) -> Matrix3x2<f64> {
+    let helper = if n.x.abs() < 0.6 {
+        Vector3::x()
+    } else if n.y.abs() < 0.6 {
+        Vector3::y()
+    } else {
+        Vector3::z()
+    };
+    let first = n.cross(&helper).normalize();
+    Matrix3x2::from_columns(&[first, n.cross(&first)])
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,166 @@
+//! Integrity settings (`[integrity]` in the configuration) and their validation.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+/// Risk budgets and the rules that decide when an epoch can be tested and a plane excluded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IntegrityConfig {
+    /// Chance that a fault-free odometry epoch is flagged (an upper bound: the tests are split
+    /// Bonferroni-style, see `thresholds`).
+    pub false_alarm_probability: f64,
+    /// Chance that a fault of minimum-detectable-bias size goes undetected; also the chance a
+    /// protection level is exceeded by an undetected fault of that size.
+    pub missed_detection_probability: f64,
+    /// Planes that may be excluded in one epoch before it is declared not isolable.
+    pub max_exclusions: usize,
+    /// Fewest planes for which the displacement solve is monitored (at least 4: one redundant
+    /// row); fewer gives `UnderDetermined`.
+    pub min_planes_displacement: usize,
+    /// Fewest planes for which the rotation solve is monitored (at least 2: two rows a plane).
+    pub min_planes_rotation: usize,
+    /// Largest condition number of the whitened geometry matrix that is still tested; above it
+    /// the epoch is `UnderDetermined` instead of inverting a near-singular geometry.
+    pub max_condition_number: f64,
+}
+
+impl Default for IntegrityConfig {
+    fn default() -> Self {
+        Self {
+            false_alarm_probability: 1e-3,
+            missed_detection_probability: 1e-3,
+            max_exclusions: 1,
+            min_planes_displacement: MIN_PLANES_DISPLACEMENT,
+            min_planes_rotation: MIN_PLANES_ROTATION,
+            max_condition_number: 1e4,
+        }
+    }
+}
+
+/// Three unknowns plus one redundant row, one row a plane.
+pub const MIN_PLANES_DISPLACEMENT: usize = 4;
+/// Three unknowns plus one redundant row, two rows a plane.
+pub const MIN_PLANES_ROTATION: usize = 2;
+
+/// A rejected `[integrity]` setting; Display is one line naming the key and the fix.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum ConfigError {
+    #[error("integrity.{key} = {value} is outside (0, 1): use e.g. 1e-3")]
+    ProbabilityOutOfRange { key: &'static str, value: f64 },
+    #[error("integrity.{key} = {value} leaves no redundant row to test: use {minimum} or more")]
+    TooFewPlanes {
+        key: &'static str,
+        value: usize,
+        minimum: usize,
+    },
+    #[error("integrity.max_condition_number = {0} must be a finite number above 1: use e.g. 1e4")]
+    ConditionLimit(f64),
+}
+
+impl IntegrityConfig {
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        probability("false_alarm_probability", self.false_alarm_probability)?;
+        probability(
+            "missed_detection_probability",
+            self.missed_detection_probability,
+        )?;
+        at_least(
+            "min_planes_displacement",
+            self.min_planes_displacement,
+            MIN_PLANES_DISPLACEMENT,
+        )?;
+        at_least(
+            "min_planes_rotation",
+            self.min_planes_rotation,
+            MIN_PLANES_ROTATION,
+        )?;
+        if !(self.max_condition_number.is_finite() && self.max_condition_number > 1.0) {
+            return Err(ConfigError::ConditionLimit(self.max_condition_number));
+        }
+        Ok(())
+    }
+}
+
+fn probability(key: &'static str, value: f64) -> Result<(), ConfigError> {
+    if value > 0.0 && value < 1.0 {
+        Ok(())
+    } else {
+        Err(ConfigError::ProbabilityOutOfRange { key, value })
+    }
+}
+
+fn at_least(key: &'static str, value: usize, minimum: usize) -> Result<(), ConfigError> {
+    if value >= minimum {
+        Ok(())
+    } else {
+        Err(ConfigError::TooFewPlanes {
+            key,
+            value,
+            minimum,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_an_empty_table_gives_them() {
+        assert_eq!(IntegrityConfig::default().validate(), Ok(()));
+        let parsed: IntegrityConfig = toml::from_str("").unwrap();
+        assert_eq!(parsed, IntegrityConfig::default());
+    }
+
+    #[test]
+    fn a_probability_outside_the_unit_interval_names_the_key() {
+        let config = IntegrityConfig {
+            false_alarm_probability: 1.5,
+            ..Default::default()
+        };
+        assert_eq!(
+            config.validate().unwrap_err().to_string(),
+            "integrity.false_alarm_probability = 1.5 is outside (0, 1): use e.g. 1e-3"
+        );
+        let config = IntegrityConfig {
+            missed_detection_probability: 0.0,
+            ..Default::default()
+        };
+        assert_eq!(
+            config.validate().unwrap_err().to_string(),
+            "integrity.missed_detection_probability = 0 is outside (0, 1): use e.g. 1e-3"
+        );
+        let config = IntegrityConfig {
+            missed_detection_probability: f64::NAN,
+            ..Default::default()
+        };
+        assert!(config.validate().is_err());
+    }
+
+    #[test]
+    fn plane_minimums_and_condition_limit_are_checked() {
+        let config = IntegrityConfig {
+            min_planes_displacement: 3,
+            ..Default::default()
+        };
+        assert_eq!(
+            config.validate().unwrap_err().to_string(),
+            "integrity.min_planes_displacement = 3 leaves no redundant row to test: use 4 or more"
+        );
+        let config = IntegrityConfig {
+            max_condition_number: f64::INFINITY,
+            ..Default::default()
+        };
+        assert_eq!(
+            config.validate().unwrap_err().to_string(),
+            "integrity.max_condition_number = inf must be a finite number above 1: use e.g. 1e4"
+        );
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_by_name() {
+        let err = toml::from_str::<IntegrityConfig>("false_alarm_probabilty = 0.01").unwrap_err();
+        assert!(err.to_string().contains("false_alarm_probabilty"), "{err}");
+    }
+}

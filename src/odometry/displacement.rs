@@ -1,0 +1,113 @@
+//! Displacement between epochs (paper eqs 1-2): `rho_i - rho_j = n . dR` for every matched
+//! plane, solved by weighted least squares with eq 37's covariance plus the term the normal's
+//! own error adds, `dR^T Sigma_n dR`.
+//!
+//! `dR` is the position of body j's origin in body-i axes. When the rotation C = C_j^i is known,
+//! the row's normal is the mean of `n_i` and `C n_j` (both measure the same direction), which
+//! halves the normal-error variance; otherwise it is `n_i` as in the paper. The normal-error term
+//! is evaluated at the prior `dR`, then once more at the first estimate. Rows are tagged with
+//! the index of their match.
+
+use super::matching::PlaneMatch;
+use super::planes::Plane;
+use crate::estimation::{weakest_directions, LinearSystem, Solution, SolveError};
+use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
+
+struct PlaneRow {
+    normal: Vector3<f64>,
+    normal_covariance: Matrix3<f64>,
+    y: f64,
+    distance_variance: f64,
+}
+
+impl PlaneRow {
+    fn new(plane_i: &Plane, plane_j: &Plane, rotation: Option<&UnitQuaternion<f64>>) -> Self {
+        let (normal, normal_covariance) = match rotation {
+            Some(c) => {
+                let c_matrix = c.to_rotation_matrix();
+                let covariance = (plane_i.uncertainty.normal_covariance
+                    + c_matrix * plane_j.uncertainty.normal_covariance * c_matrix.transpose())
+                    / 4.0;
+                (
+                    (plane_i.normal + c * plane_j.normal).normalize(),
+                    covariance,
+                )
+            }
+            None => (plane_i.normal, plane_i.uncertainty.normal_covariance),
+        };
+        Self {
+            normal,
+            normal_covariance,
+            y: plane_i.rho - plane_j.rho,
+            distance_variance: plane_i.uncertainty.sigma_rho.powi(2)
+                + plane_j.uncertainty.sigma_rho.powi(2),
+        }
+    }
+
+    fn variance(&self, displacement: &Vector3<f64>) -> f64 {
+        self.distance_variance + displacement.dot(&(self.normal_covariance * displacement))
+    }
+}
+
+/// Weighted least squares for dR, leaving out the matches listed in `excluded`.
+pub fn solve_displacement(
+    previous: &[Plane],
+    current: &[Plane],
+    matches: &[PlaneMatch],
+    rotation: Option<&UnitQuaternion<f64>>,
+    prior_displacement: &Vector3<f64>,
+    excluded: &[usize],
+) -> Result<Solution, SolveError> {
+    let active = || {
+        matches
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !excluded.contains(k))
+            .map(|(k, m)| {
+                (
+                    k,
+                    PlaneRow::new(&previous[m.previous], &current[m.current], rotation),
+                )
+            })
+    };
+    let first_estimate = weighted_estimate(active().map(|(_, row)| row), prior_displacement)?;
+    let planes = active().count();
+    let mut system = LinearSystem {
+        h: DMatrix::zeros(planes, 3),
+        y: DVector::zeros(planes),
+        r: DMatrix::zeros(planes, planes),
+        plane_of_row: Vec::with_capacity(planes),
+    };
+    for (row, (k, plane)) in active().enumerate() {
+        system.h.row_mut(row).copy_from(&plane.normal.transpose());
+        system.y[row] = plane.y;
+        system.r[(row, row)] = plane.variance(&first_estimate);
+        system.plane_of_row.push(k);
+    }
+    system.solve()
+}
+
+/// Allocation-free first pass with the normal-error term taken at the prior.
+fn weighted_estimate(
+    rows: impl Iterator<Item = PlaneRow>,
+    prior_displacement: &Vector3<f64>,
+) -> Result<Vector3<f64>, SolveError> {
+    let mut information = Matrix3::zeros();
+    let mut gradient = Vector3::zeros();
+    for row in rows {
+        let weight = 1.0 / row.variance(prior_displacement);
+        if !weight.is_finite() || weight <= 0.0 {
+            return Err(SolveError::BadCovariance);
+        }
+        information += row.normal * row.normal.transpose() * weight;
+        gradient += row.normal * (row.y * weight);
+    }
+    let unobservable = weakest_directions(&information);
+    if !unobservable.is_empty() {
+        return Err(SolveError::UnderDetermined { unobservable });
+    }
+    Ok(information
+        .cholesky()
+        .ok_or(SolveError::BadCovariance)?
+        .solve(&gradient))
+}

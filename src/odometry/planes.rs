@@ -1,0 +1,243 @@
+//! Plane extraction (paper section 3.1, eqs 8-9): a line of one scanner plus the centre of a
+//! coplanar line of the other. The normal is the smallest eigenvector of V^T V (the SVD of eq
+//! 8), the distance the mean of eq 9 over the first line. Each line serves one plane at most.
+
+use super::deskew::Beam;
+use super::lines::Segment;
+use super::uncertainty::{plane_uncertainty, LineSample, PlaneUncertainty};
+use nalgebra::{SymmetricEigen, Vector3};
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PlaneParameters {
+    /// Smallest distance of line 2's centre from line 1 (eq 8 degenerates when it lies on it).
+    pub min_separation_m: f64,
+    /// How many predicted sigmas line 2 may tilt out of the plane and still count as coplanar.
+    pub coplanarity_gate_sigmas: f64,
+    /// Keep only planes that a third line confirms (guards against fictitious planes, Fig. 3).
+    pub require_third_line: bool,
+    /// Also pair lines too close to parallel for the coplanarity test to mean anything (the
+    /// paper does); such planes are tried last, as they may be fictitious.
+    pub accept_parallel_lines: bool,
+    /// Planes whose normal is known worse than this (rad) are dropped: they add little and their
+    /// error is no longer linear in the noise.
+    pub max_sigma_normal_rad: f64,
+}
+
+/// A line of scanner `scanner`: index `segment` into that scanner's lines.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LineRef {
+    pub scanner: usize,
+    pub segment: usize,
+}
+
+/// A plane in the body frame at the epoch's reference time: `normal . p = rho`, `rho > 0`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plane {
+    /// Index of the plane in its epoch.
+    pub id: usize,
+    /// Unit normal, pointing from the body origin towards the plane.
+    pub normal: Vector3<f64>,
+    /// Distance from the body origin, metres.
+    pub rho: f64,
+    pub uncertainty: PlaneUncertainty,
+    /// The fitted line (eq 8's Line1) and the line whose centre closes the plane (Line2).
+    pub lines: [LineRef; 2],
+    /// Whether the two lines cross at an angle the coplanarity test resolves. Two parallel
+    /// lines are always coplanar, so such a plane may be fictitious (Fig. 3) and pairs that
+    /// cross are preferred when lines compete.
+    pub crossing: bool,
+    /// Whether a third line lies in the plane within its noise.
+    pub confirmed: bool,
+}
+
+/// The lines of one scan with the beams they index and the scanner's ranging sigma.
+#[derive(Debug, Clone, Copy)]
+pub struct ScanLines<'a> {
+    pub segments: &'a [Segment],
+    pub beams: &'a [Beam],
+    pub range_sigma: f64,
+}
+
+impl<'a> ScanLines<'a> {
+    fn sample(&self, segment: usize) -> LineSample<'a> {
+        LineSample {
+            segment: &self.segments[segment],
+            beams: self.beams,
+            range_sigma: self.range_sigma,
+        }
+    }
+}
+
+/// Reusable candidate buffers.
+#[derive(Debug, Default)]
+pub struct PlaneExtractor {
+    candidates: Vec<Plane>,
+    used: [Vec<bool>; 2],
+}
+
+impl PlaneExtractor {
+    /// Fills `out` (cleared first) with the planes found from the two scanners' lines.
+    pub fn extract(
+        &mut self,
+        scans: [ScanLines; 2],
+        parameters: &PlaneParameters,
+        out: &mut Vec<Plane>,
+    ) {
+        out.clear();
+        self.candidates.clear();
+        for i in 0..scans[0].segments.len() {
+            for j in 0..scans[1].segments.len() {
+                let a = LineRef {
+                    scanner: 0,
+                    segment: i,
+                };
+                let b = LineRef {
+                    scanner: 1,
+                    segment: j,
+                };
+                let spread = |r: LineRef| scans[r.scanner].segments[r.segment].abscissa_spread;
+                let pair = if spread(a) >= spread(b) {
+                    [a, b]
+                } else {
+                    [b, a]
+                };
+                if let Some(plane) = plane_from_pair(&scans, pair, parameters) {
+                    self.candidates.push(plane);
+                }
+            }
+        }
+        self.candidates.sort_unstable_by(|p, q| {
+            (!p.crossing, p.uncertainty.sigma_normal)
+                .partial_cmp(&(!q.crossing, q.uncertainty.sigma_normal))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        for (used, scan) in self.used.iter_mut().zip(&scans) {
+            used.clear();
+            used.resize(scan.segments.len(), false);
+        }
+        for candidate in &self.candidates {
+            if candidate
+                .lines
+                .iter()
+                .any(|l| self.used[l.scanner][l.segment])
+            {
+                continue;
+            }
+            for l in candidate.lines {
+                self.used[l.scanner][l.segment] = true;
+            }
+            let mut plane = *candidate;
+            plane.confirmed = has_third_line(&plane, &scans, parameters);
+            if plane.confirmed || !parameters.require_third_line {
+                plane.id = out.len();
+                out.push(plane);
+            }
+        }
+    }
+}
+
+fn plane_from_pair(
+    scans: &[ScanLines; 2],
+    pair: [LineRef; 2],
+    parameters: &PlaneParameters,
+) -> Option<Plane> {
+    let line1 = scans[pair[0].scanner].sample(pair[0].segment);
+    let line2 = scans[pair[1].scanner].sample(pair[1].segment);
+    let (s1, s2) = (line1.segment, line2.segment);
+    let v0 = s1.centroid - s2.centroid;
+    let rough = s1.direction.cross(&v0);
+    let separation = rough.norm();
+    if separation < parameters.min_separation_m {
+        return None;
+    }
+    if !passes_rough_coplanarity(
+        &line1,
+        &line2,
+        &(rough / separation),
+        separation,
+        parameters,
+    ) {
+        return None;
+    }
+    let scatter_v = s1.scatter + v0 * v0.transpose() * s1.points() as f64;
+    let eigen = SymmetricEigen::new(scatter_v);
+    let mut normal: Vector3<f64> = eigen
+        .eigenvectors
+        .column(eigen.eigenvalues.imin())
+        .into_owned();
+    let mut rho = s1.centroid.dot(&normal);
+    if rho < 0.0 {
+        normal = -normal;
+        rho = -rho;
+    }
+    let uncertainty = plane_uncertainty(&line1, &line2, &normal);
+    let sigma_normal = uncertainty.sigma_normal;
+    if sigma_normal.is_nan() || sigma_normal > parameters.max_sigma_normal_rad {
+        return None;
+    }
+    let tilt_gate = parameters.coplanarity_gate_sigmas * slope_sigma(&line2, &uncertainty);
+    if s2.direction.dot(&normal).abs() > tilt_gate {
+        return None;
+    }
+    let crossing = s1.direction.cross(&s2.direction).norm() > tilt_gate;
+    if !crossing && !parameters.accept_parallel_lines {
+        return None;
+    }
+    Some(Plane {
+        id: 0,
+        normal,
+        rho,
+        uncertainty,
+        lines: pair,
+        crossing,
+        confirmed: false,
+    })
+}
+
+/// Cheap pre-test with the normal `d1 x v0` and a generous gate, so that only plausible pairs
+/// pay for the eigen-decomposition.
+fn passes_rough_coplanarity(
+    line1: &LineSample,
+    line2: &LineSample,
+    rough_normal: &Vector3<f64>,
+    separation: f64,
+    parameters: &PlaneParameters,
+) -> bool {
+    let (s1, s2) = (line1.segment, line2.segment);
+    let var1 = line1.range_sigma.powi(2);
+    let var2 = line2.range_sigma.powi(2);
+    let tilt_variance = var2 / s2.abscissa_spread
+        + var1 / s1.abscissa_spread
+        + (var1 / s1.points() as f64 + var2 / s2.points() as f64) / separation.powi(2);
+    s2.direction.dot(rough_normal).abs()
+        <= 2.0 * parameters.coplanarity_gate_sigmas * tilt_variance.sqrt()
+}
+
+/// Predicted sigma of the angle between a line and a plane it lies in.
+fn slope_sigma(line: &LineSample, plane: &PlaneUncertainty) -> f64 {
+    let d = line.segment.direction;
+    let own = line.range_sigma.powi(2) / line.segment.abscissa_spread;
+    (own + d.dot(&(plane.normal_covariance * d))).sqrt()
+}
+
+fn has_third_line(plane: &Plane, scans: &[ScanLines; 2], parameters: &PlaneParameters) -> bool {
+    let gate = parameters.coplanarity_gate_sigmas;
+    scans.iter().enumerate().any(|(scanner, scan)| {
+        (0..scan.segments.len()).any(|segment| {
+            let here = LineRef { scanner, segment };
+            if plane.lines.contains(&here) {
+                return false;
+            }
+            let line = scan.sample(segment);
+            let s = line.segment;
+            let offset = s.centroid.dot(&plane.normal) - plane.rho;
+            let lever = s.centroid - plane.normal * plane.rho;
+            let offset_variance = line.range_sigma.powi(2) / s.points() as f64
+                + plane.uncertainty.sigma_rho.powi(2)
+                + lever.dot(&(plane.uncertainty.normal_covariance * lever));
+            let tilt_sigma = slope_sigma(&line, &plane.uncertainty);
+            offset.abs() <= gate * offset_variance.sqrt()
+                && s.direction.dot(&plane.normal).abs() <= gate * tilt_sigma
+        })
+    })
+}

@@ -1,0 +1,376 @@
+//! The built-in scenarios, after the paper's section 4. All coordinates are NED with the body
+//! starting at the origin; floors are at positive z (below), ceilings at negative z.
+
+use super::imu::ImuConfig;
+use super::scanner::{ScannerConfig, ScannerModel};
+use super::scenario::Scenario;
+use super::scene::{Motion, Patch, Profile, Scene};
+use super::trajectory::{Oscillation, Trajectory};
+use crate::sensors::ScannerGeometry;
+use nalgebra::{UnitQuaternion, Vector3};
+
+/// The paper's sec. 4.1 bias experiments, applied to plane 2 at epoch 1 (t = 1 s).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PaperBias {
+    None,
+    /// Plane 2 moves 0.1 m away from the scanner; the body steps to NED [0.6, 0.4, 0].
+    Translated,
+    /// The body stays put but turns 5 deg in heading; plane 2 turns 5.7 deg about the vertical
+    /// through the scanner, which keeps its distance.
+    Rotated,
+}
+
+/// The paper's 180 deg / 0.5 deg / 1 Hz scanner (steps 180..=540 of 720, front at 360).
+pub const PAPER_SCANNER: ScannerGeometry = ScannerGeometry {
+    ares: 720,
+    amin: 180,
+    amax: 540,
+    afrt: 360,
+    rpm: 60,
+    dmin_m: 0.02,
+    dmax_m: 30.0,
+};
+
+pub(crate) const PAPER_EPOCH_S: f64 = 1.0;
+
+/// Wall facing the origin: centre at `range` along azimuth `az_deg` (from north, to the right),
+/// normal towards the origin, then skewed about the vertical and tilted about its horizontal axis.
+fn paper_plane(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64) -> Patch {
+    let az = az_deg.to_radians();
+    let towards = Vector3::new(az.cos(), az.sin(), 0.0);
+    let skew = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), skew_deg.to_radians());
+    let horizontal = skew * Vector3::z().cross(&towards).normalize();
+    let tilt = UnitQuaternion::from_axis_angle(
+        &nalgebra::Unit::new_normalize(horizontal),
+        tilt_deg.to_radians(),
+    );
+    let up_in_plane = tilt * -Vector3::z();
+    // About 50 beams of 0.5 deg: 25 deg of azimuth.
+    let half_width = range * 12.5f64.to_radians().tan();
+    Patch::new(
+        name,
+        (towards * range).into(),
+        horizontal.into(),
+        up_in_plane.into(),
+        [half_width, 1.5],
+    )
+}
+
+pub(crate) fn paper_sim(bias: PaperBias) -> Scenario {
+    let mut scene = Scene {
+        patches: vec![
+            paper_plane("plane-1", -65.0, 3.0, 20.0, 25.0),
+            paper_plane("plane-2", -20.0, 5.0, 0.0, 0.0),
+            paper_plane("plane-3", 25.0, 4.5, -15.0, -20.0),
+            paper_plane("plane-4", 70.0, 3.5, 10.0, 35.0),
+        ],
+    };
+    let moved = &mut scene.patches[1];
+    let (position_after_m, rpy_after_deg, name) = match bias {
+        PaperBias::None => ([0.6, 0.4, 0.0], [0.0; 3], "paper-sim"),
+        PaperBias::Translated => {
+            moved.motion = Motion::Translate {
+                direction: moved.centre_m,
+                distance_m: Profile::Step {
+                    at_s: PAPER_EPOCH_S,
+                    amount: 0.1,
+                },
+            };
+            ([0.6, 0.4, 0.0], [0.0; 3], "paper-sim-translated-plane")
+        }
+        PaperBias::Rotated => {
+            moved.motion = Motion::Rotate {
+                pivot_m: [0.0; 3],
+                axis: [0.0, 0.0, 1.0],
+                angle_deg: Profile::Step {
+                    at_s: PAPER_EPOCH_S,
+                    amount: 5.7,
+                },
+            };
+            ([0.0; 3], [0.0, 0.0, 5.0], "paper-sim-rotated-plane")
+        }
+    };
+    let scanner = |name: &str, pitch: f64| ScannerConfig {
+        geometry: Some(PAPER_SCANNER),
+        ..ScannerConfig::new(name, ScannerModel::Custom, [0.0, pitch, 0.0], 0.01)
+    };
+    Scenario {
+        name: name.to_string(),
+        seed: 1,
+        duration_s: 2.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Step {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0; 3],
+            at_s: PAPER_EPOCH_S,
+            position_after_m,
+            rpy_after_deg,
+        },
+        scanners: vec![scanner("level", 0.0), scanner("raised", 10.0)],
+        imu: None,
+        scene,
+    }
+}
+
+/// Rounds away binary noise such as 0.7999999999999999 so the scenario files read cleanly.
+fn tidy<const N: usize>(values: [f64; N]) -> [f64; N] {
+    values.map(|v| (v * 1e9).round() / 1e9)
+}
+
+/// Vertical wall patch from `(x0, y0)` to `(x1, y1)` between heights `z_top` and `z_bottom`.
+fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
+    let along = Vector3::new(to[0] - from[0], to[1] - from[1], 0.0);
+    Patch::new(
+        name,
+        tidy([
+            (from[0] + to[0]) / 2.0,
+            (from[1] + to[1]) / 2.0,
+            (z_top + z_bottom) / 2.0,
+        ]),
+        tidy(along.normalize().into()),
+        [0.0, 0.0, 1.0],
+        tidy([along.norm() / 2.0, (z_bottom - z_top) / 2.0]),
+    )
+}
+
+/// Horizontal patch at height `z` over `[x0, x1] x [y0, y1]`.
+fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
+    Patch::new(
+        name,
+        tidy([(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z]),
+        [1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        tidy([(x[1] - x[0]) / 2.0, (y[1] - y[0]) / 2.0]),
+    )
+}
+
+/// Sec. 4.2: two URG-04LX on a tripod near the corner of an office, 1.4 m below the ceiling and
+/// 1.2 m above the floor, scan planes raised 35 and 55 deg; the door in the right-hand wall, beside
+/// the scanners (x = -0.45 .. 0.45), swings into the room 0 -> 90 -> 0 deg five times (period 9 s
+/// from t = 2 s).
+pub(crate) fn office_door() -> Scenario {
+    let (ceiling, floor, door_top) = (-1.4, 1.2, -0.8);
+    let door_hinge = [0.45, 2.79];
+    let door = Patch::new(
+        "door",
+        tidy([
+            door_hinge[0] - 0.45,
+            door_hinge[1],
+            (door_top + floor) / 2.0,
+        ]),
+        [1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+        tidy([0.45, (floor - door_top) / 2.0]),
+    )
+    .with_motion(Motion::Rotate {
+        pivot_m: [door_hinge[0], door_hinge[1], 0.0],
+        axis: [0.0, 0.0, 1.0],
+        angle_deg: Profile::Swing {
+            start_s: 2.0,
+            period_s: 9.0,
+            cycles: 5,
+            amplitude: 90.0,
+        },
+    });
+    let scene = Scene {
+        patches: vec![
+            wall("front-wall", [2.5, -1.2], [2.5, 2.8], ceiling, floor),
+            wall("left-wall", [-3.0, -1.2], [2.5, -1.2], ceiling, floor),
+            wall("right-wall-rear", [-3.0, 2.8], [-0.45, 2.8], ceiling, floor),
+            wall("right-wall-front", [0.45, 2.8], [2.5, 2.8], ceiling, floor),
+            wall("lintel", [-0.45, 2.8], [0.45, 2.8], ceiling, door_top),
+            wall("back-wall", [-3.0, -1.2], [-3.0, 2.8], ceiling, floor),
+            wall("corridor-wall", [-2.0, 4.3], [2.0, 4.3], ceiling, floor),
+            slab("ceiling", [-3.0, 2.5], [-1.2, 2.8], ceiling),
+            slab("floor", [-3.0, 2.5], [-1.2, 2.8], floor),
+            door,
+        ],
+    };
+    let urg = |name: &str, pitch: f64, z: f64| ScannerConfig {
+        mount_translation_m: [0.0, 0.0, z],
+        skip: 2,
+        ..ScannerConfig::new(name, ScannerModel::Urg04lx, [0.0, pitch, 0.0], 0.015)
+    };
+    Scenario {
+        name: "office-door".into(),
+        seed: 2,
+        duration_s: 50.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Stationary {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0; 3],
+        },
+        scanners: vec![urg("urg-low", 35.0, 0.03), urg("urg-high", 55.0, -0.03)],
+        imu: None,
+        scene,
+    }
+}
+
+/// Hallway 2.2 m wide (y = -1.1 .. 1.1), floor 1.2 m below and ceiling 1.3 m above the start,
+/// from `back_x` to `end_x`; a door in the right wall at x = 0.3 .. 1.2 opening away from the
+/// hallway into a room, and a 1.6 m tall cabinet against the left wall at x = 0.6 .. 1.2.
+fn hallway(back_x: f64, end_x: f64, door: Profile) -> Scene {
+    let (ceiling, floor, door_top) = (-1.3, 1.2, -0.8);
+    let (door_from, door_to) = (0.3, 1.2);
+    let mut scene = Scene {
+        patches: vec![
+            slab("floor", [back_x, end_x], [-1.1, 1.1], floor),
+            slab("ceiling", [back_x, end_x], [-1.1, 1.1], ceiling),
+            wall("left-wall", [back_x, -1.1], [end_x, -1.1], ceiling, floor),
+            wall(
+                "right-wall-rear",
+                [back_x, 1.1],
+                [door_from, 1.1],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "right-wall-front",
+                [door_to, 1.1],
+                [end_x, 1.1],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "lintel",
+                [door_from, 1.1],
+                [door_to, 1.1],
+                ceiling,
+                door_top,
+            ),
+            wall("end-wall", [end_x, -1.1], [end_x, 1.1], ceiling, floor),
+            wall("back-wall", [back_x, -1.1], [back_x, 1.1], ceiling, floor),
+            wall("room-wall", [-1.0, 3.5], [2.5, 3.5], ceiling, floor),
+            Patch::new(
+                "door",
+                tidy([(door_from + door_to) / 2.0, 1.1, (door_top + floor) / 2.0]),
+                [1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0],
+                tidy([(door_to - door_from) / 2.0, (floor - door_top) / 2.0]),
+            )
+            .with_motion(Motion::Rotate {
+                pivot_m: [door_to, 1.1, 0.0],
+                axis: [0.0, 0.0, -1.0],
+                angle_deg: door,
+            }),
+        ],
+    };
+    scene.add_box(
+        "cabinet",
+        [0.9, -0.8, 0.4],
+        [0.3, 0.3, 0.8],
+        0.0,
+        Motion::Static,
+    );
+    scene
+}
+
+fn hallway_scanners() -> Vec<ScannerConfig> {
+    vec![
+        ScannerConfig {
+            mount_translation_m: [0.05, 0.0, -0.05],
+            skip: 9,
+            ..ScannerConfig::new("utm", ScannerModel::Utm30lx, [0.0, 0.0, 0.0], 0.01)
+        },
+        ScannerConfig {
+            mount_translation_m: [0.05, 0.0, 0.05],
+            skip: 9,
+            phase_s: 0.0123,
+            ..ScannerConfig::new("ust", ScannerModel::Ust20lx, [0.0, -30.0, 0.0], 0.01)
+        },
+    ]
+}
+
+fn gentle_hover(start_s: f64) -> Oscillation {
+    Oscillation {
+        position_amplitude_m: [0.03, 0.03, 0.02],
+        position_period_s: [7.3, 5.9, 4.1],
+        attitude_amplitude_deg: [0.5, 0.5, 1.0],
+        attitude_period_s: [6.1, 4.7, 8.3],
+        start_s,
+        ramp_s: 10.0,
+    }
+}
+
+/// Sec. 4.3: 500 s hover at -10 deg pitch, still for the first 40 s (ZUPT), UTM-30LX level and
+/// UST-20LX pitched 30 deg further down (both 4 Hz: SCIP scan interval 9), IMU at 400 Hz. The
+/// door opens and closes 15 times (19 s each from t = 5 s); from t = 300 s a 60 x 90 cm board
+/// approaches from 5 m to 1 m in front and departs, 10 times (19 s each).
+pub(crate) fn hallway_hover() -> Scenario {
+    let mut scene = hallway(
+        -6.0,
+        9.0,
+        Profile::Swing {
+            start_s: 5.0,
+            period_s: 19.0,
+            cycles: 15,
+            amplitude: 90.0,
+        },
+    );
+    scene.patches.push(
+        Patch::new(
+            "board",
+            [5.0, 0.2, 0.55],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.3, 0.45],
+        )
+        .with_motion(Motion::Translate {
+            direction: [-1.0, 0.0, 0.0],
+            distance_m: Profile::Swing {
+                start_s: 300.0,
+                period_s: 19.0,
+                cycles: 10,
+                amplitude: 4.0,
+            },
+        }),
+    );
+    Scenario {
+        name: "hallway-hover".into(),
+        seed: 3,
+        duration_s: 500.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Hover {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0, -10.0, 0.0],
+            oscillation: gentle_hover(40.0),
+        },
+        scanners: hallway_scanners(),
+        imu: Some(ImuConfig::default()),
+        scene,
+    }
+}
+
+/// A flight down a 26 m hallway: still for 10 s, 12 m forward in 12 s (peak 1.9 m/s), a 180 deg
+/// turn in 4 s, 12 m back, then 5 s of hover; -10 deg pitch and gentle hover motions throughout.
+/// The door swings 4 times (10 s each from t = 8 s).
+pub(crate) fn hallway_flight() -> Scenario {
+    Scenario {
+        name: "hallway-flight".into(),
+        seed: 4,
+        duration_s: 43.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Flight {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0, -10.0, 0.0],
+            start_s: 10.0,
+            leg_length_m: 12.0,
+            leg_duration_s: 12.0,
+            return_leg: true,
+            turn_duration_s: 4.0,
+            oscillation: gentle_hover(10.0),
+        },
+        scanners: hallway_scanners(),
+        imu: Some(ImuConfig::default()),
+        scene: hallway(
+            -6.0,
+            20.0,
+            Profile::Swing {
+                start_s: 8.0,
+                period_s: 10.0,
+                cycles: 4,
+                amplitude: 90.0,
+            },
+        ),
+    }
+}

@@ -1,0 +1,408 @@
+//! Analytic body trajectories. Every coordinate is a closed-form function of time with exact first
+//! and second derivatives, so the IMU derived from it agrees with the truth to rounding.
+
+use super::GRAVITY;
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+use std::f64::consts::{PI, TAU};
+
+/// A scalar function of time with its first and second derivatives at one instant.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Jet {
+    value: f64,
+    rate: f64,
+    accel: f64,
+}
+
+impl Jet {
+    fn constant(value: f64) -> Self {
+        Self {
+            value,
+            ..Self::default()
+        }
+    }
+
+    fn add(self, other: Self) -> Self {
+        Self {
+            value: self.value + other.value,
+            rate: self.rate + other.rate,
+            accel: self.accel + other.accel,
+        }
+    }
+
+    fn scale(self, k: f64) -> Self {
+        Self {
+            value: k * self.value,
+            rate: k * self.rate,
+            accel: k * self.accel,
+        }
+    }
+
+    fn mul(self, other: Self) -> Self {
+        Self {
+            value: self.value * other.value,
+            rate: self.rate * other.value + self.value * other.rate,
+            accel: self.accel * other.value
+                + 2.0 * self.rate * other.rate
+                + self.value * other.accel,
+        }
+    }
+
+    /// `amplitude * sin(2 pi t / period)`; a zero amplitude or period gives zero.
+    fn sine(t: f64, amplitude: f64, period: f64) -> Self {
+        if amplitude == 0.0 || period <= 0.0 {
+            return Self::default();
+        }
+        let w = TAU / period;
+        let (s, c) = (w * t).sin_cos();
+        Self {
+            value: amplitude * s,
+            rate: amplitude * w * c,
+            accel: -amplitude * w * w * s,
+        }
+    }
+
+    /// Minimum-jerk step from 0 to 1 over `[start, start + duration]`: zero velocity and zero
+    /// acceleration at both ends, so pieces join without jumps in specific force.
+    fn smooth_step(t: f64, start: f64, duration: f64) -> Self {
+        if duration <= 0.0 {
+            return Self::constant(if t >= start { 1.0 } else { 0.0 });
+        }
+        let u = (t - start) / duration;
+        if u <= 0.0 {
+            return Self::default();
+        }
+        if u >= 1.0 {
+            return Self::constant(1.0);
+        }
+        let (u2, u3) = (u * u, u * u * u);
+        Self {
+            value: u3 * (10.0 - 15.0 * u + 6.0 * u2),
+            rate: 30.0 * u2 * (1.0 - u) * (1.0 - u) / duration,
+            accel: 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / (duration * duration),
+        }
+    }
+}
+
+/// Small hover motions: per-axis sinusoids in position (NED) and attitude (roll, pitch, yaw),
+/// faded in from `start_s` over `ramp_s` so the body is exactly still before (for ZUPT).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct Oscillation {
+    pub position_amplitude_m: [f64; 3],
+    pub position_period_s: [f64; 3],
+    pub attitude_amplitude_deg: [f64; 3],
+    pub attitude_period_s: [f64; 3],
+    pub start_s: f64,
+    pub ramp_s: f64,
+}
+
+impl Oscillation {
+    fn envelope(&self, t: f64) -> Jet {
+        Jet::smooth_step(t, self.start_s, self.ramp_s)
+    }
+
+    fn position(&self, t: f64, axis: usize) -> Jet {
+        let local = t - self.start_s;
+        let wave = Jet::sine(
+            local,
+            self.position_amplitude_m[axis],
+            self.position_period_s[axis],
+        );
+        self.envelope(t).mul(wave)
+    }
+
+    fn attitude(&self, t: f64, axis: usize) -> Jet {
+        let local = t - self.start_s;
+        let wave = Jet::sine(
+            local,
+            self.attitude_amplitude_deg[axis].to_radians(),
+            self.attitude_period_s[axis],
+        );
+        self.envelope(t).mul(wave)
+    }
+}
+
+/// Motion of the body origin and attitude in NED. Positions in metres, angles in degrees
+/// (`rpy_deg = [roll, pitch, yaw]`, aerospace ZYX).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "kebab-case", deny_unknown_fields)]
+pub enum Trajectory {
+    /// Fixed pose.
+    Stationary {
+        position_m: [f64; 3],
+        rpy_deg: [f64; 3],
+    },
+    /// Fixed pose plus small sinusoidal motions.
+    Hover {
+        position_m: [f64; 3],
+        rpy_deg: [f64; 3],
+        #[serde(default)]
+        oscillation: Oscillation,
+    },
+    /// Flight along the initial heading: wait until `start_s`, fly `leg_length_m` in
+    /// `leg_duration_s` (minimum-jerk speed profile, peak 1.875 x mean speed), then optionally
+    /// turn 180 deg in yaw over `turn_duration_s` and fly back. Hover motions are superposed.
+    Flight {
+        position_m: [f64; 3],
+        rpy_deg: [f64; 3],
+        start_s: f64,
+        leg_length_m: f64,
+        leg_duration_s: f64,
+        #[serde(default)]
+        return_leg: bool,
+        #[serde(default)]
+        turn_duration_s: f64,
+        #[serde(default)]
+        oscillation: Oscillation,
+    },
+    /// Pose jumps at `at_s` (the paper's two compensated epochs). Has no IMU-consistent motion.
+    Step {
+        position_m: [f64; 3],
+        rpy_deg: [f64; 3],
+        at_s: f64,
+        position_after_m: [f64; 3],
+        rpy_after_deg: [f64; 3],
+    },
+}
+
+/// Full kinematic state of the body at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Kinematics {
+    pub t: f64,
+    /// Position of the body origin, NED, m.
+    pub p: Vector3<f64>,
+    /// Attitude, body -> NED.
+    pub q: UnitQuaternion<f64>,
+    /// Velocity, NED, m/s.
+    pub v: Vector3<f64>,
+    /// Acceleration, NED, m/s^2.
+    pub a: Vector3<f64>,
+    /// Angular rate of the body relative to NED, in body axes, rad/s.
+    pub omega_body: Vector3<f64>,
+    /// Specific force (acceleration minus gravity) in body axes, m/s^2.
+    pub specific_force_body: Vector3<f64>,
+}
+
+impl Trajectory {
+    /// Whether the motion has continuous acceleration, which an IMU needs.
+    pub fn is_smooth(&self) -> bool {
+        !matches!(self, Self::Step { .. })
+    }
+
+    /// Position and attitude only (cheaper than [`Self::kinematics`]; used per beam).
+    pub fn pose(&self, t: f64) -> (Vector3<f64>, UnitQuaternion<f64>) {
+        let (p, e) = self.coordinates(t);
+        (
+            Vector3::new(p[0].value, p[1].value, p[2].value),
+            euler_to_quaternion(e[0].value, e[1].value, e[2].value),
+        )
+    }
+
+    pub fn kinematics(&self, t: f64) -> Kinematics {
+        let (p, e) = self.coordinates(t);
+        let q = euler_to_quaternion(e[0].value, e[1].value, e[2].value);
+        let a = Vector3::new(p[0].accel, p[1].accel, p[2].accel);
+        let gravity = Vector3::new(0.0, 0.0, GRAVITY);
+        Kinematics {
+            t,
+            p: Vector3::new(p[0].value, p[1].value, p[2].value),
+            q,
+            v: Vector3::new(p[0].rate, p[1].rate, p[2].rate),
+            a,
+            omega_body: euler_rates_to_body(&e),
+            specific_force_body: q.inverse_transform_vector(&(a - gravity)),
+        }
+    }
+
+    /// Each NED position coordinate and each Euler angle (rad) as a jet.
+    fn coordinates(&self, t: f64) -> ([Jet; 3], [Jet; 3]) {
+        match self {
+            Self::Stationary {
+                position_m,
+                rpy_deg,
+            } => (
+                position_m.map(Jet::constant),
+                rpy_deg.map(|a| Jet::constant(a.to_radians())),
+            ),
+            Self::Hover {
+                position_m,
+                rpy_deg,
+                oscillation,
+            } => hover_coordinates(t, position_m, rpy_deg, oscillation),
+            Self::Flight {
+                position_m,
+                rpy_deg,
+                start_s,
+                leg_length_m,
+                leg_duration_s,
+                return_leg,
+                turn_duration_s,
+                oscillation,
+            } => {
+                let (mut p, mut e) = hover_coordinates(t, position_m, rpy_deg, oscillation);
+                let outbound = Jet::smooth_step(t, *start_s, *leg_duration_s);
+                let (along, turn) = if *return_leg {
+                    let turn_start = start_s + leg_duration_s;
+                    let back_start = turn_start + turn_duration_s;
+                    let back = Jet::smooth_step(t, back_start, *leg_duration_s);
+                    (
+                        outbound.add(back.scale(-1.0)),
+                        Jet::smooth_step(t, turn_start, *turn_duration_s).scale(PI),
+                    )
+                } else {
+                    (outbound, Jet::default())
+                };
+                let heading = rpy_deg[2].to_radians();
+                let along = along.scale(*leg_length_m);
+                p[0] = p[0].add(along.scale(heading.cos()));
+                p[1] = p[1].add(along.scale(heading.sin()));
+                e[2] = e[2].add(turn);
+                (p, e)
+            }
+            Self::Step {
+                position_m,
+                rpy_deg,
+                at_s,
+                position_after_m,
+                rpy_after_deg,
+            } => {
+                let (p, e) = if t < *at_s {
+                    (position_m, rpy_deg)
+                } else {
+                    (position_after_m, rpy_after_deg)
+                };
+                (
+                    p.map(Jet::constant),
+                    e.map(|a| Jet::constant(a.to_radians())),
+                )
+            }
+        }
+    }
+}
+
+fn hover_coordinates(
+    t: f64,
+    position_m: &[f64; 3],
+    rpy_deg: &[f64; 3],
+    oscillation: &Oscillation,
+) -> ([Jet; 3], [Jet; 3]) {
+    let p = std::array::from_fn(|i| Jet::constant(position_m[i]).add(oscillation.position(t, i)));
+    let e = std::array::from_fn(|i| {
+        Jet::constant(rpy_deg[i].to_radians()).add(oscillation.attitude(t, i))
+    });
+    (p, e)
+}
+
+/// Rz(yaw) Ry(pitch) Rx(roll), the same composition as `Mount::from_rpy_deg`.
+pub fn euler_to_quaternion(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+        * UnitQuaternion::from_axis_angle(&Vector3::y_axis(), pitch)
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), roll)
+}
+
+/// Body angular rate from ZYX Euler angles and their rates.
+fn euler_rates_to_body(e: &[Jet; 3]) -> Vector3<f64> {
+    let (roll, pitch) = (e[0].value, e[1].value);
+    let (droll, dpitch, dyaw) = (e[0].rate, e[1].rate, e[2].rate);
+    let (sr, cr) = roll.sin_cos();
+    let (sp, cp) = pitch.sin_cos();
+    Vector3::new(
+        droll - dyaw * sp,
+        dpitch * cr + dyaw * sr * cp,
+        -dpitch * sr + dyaw * cr * cp,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn busy_flight() -> Trajectory {
+        Trajectory::Flight {
+            position_m: [1.0, -0.5, -1.2],
+            rpy_deg: [2.0, -10.0, 30.0],
+            start_s: 0.5,
+            leg_length_m: 4.0,
+            leg_duration_s: 3.0,
+            return_leg: true,
+            turn_duration_s: 2.0,
+            oscillation: Oscillation {
+                position_amplitude_m: [0.03, 0.02, 0.04],
+                position_period_s: [2.1, 3.3, 1.7],
+                attitude_amplitude_deg: [3.0, 2.0, 4.0],
+                attitude_period_s: [1.9, 2.7, 3.1],
+                start_s: 0.2,
+                ramp_s: 1.0,
+            },
+        }
+    }
+
+    #[test]
+    fn derivatives_match_central_differences() {
+        let traj = busy_flight();
+        let h = 1e-5;
+        for &t in &[0.1, 0.7, 1.3, 2.9, 3.6, 4.4, 6.0, 8.9] {
+            let k = traj.kinematics(t);
+            let (before, after) = (traj.kinematics(t - h), traj.kinematics(t + h));
+            let v_fd = (after.p - before.p) / (2.0 * h);
+            let a_fd = (after.v - before.v) / (2.0 * h);
+            assert!((v_fd - k.v).norm() < 1e-8, "velocity at {t}");
+            assert!((a_fd - k.a).norm() < 1e-7, "acceleration at {t}");
+            let dq = before.q.inverse() * after.q;
+            let omega_fd = dq.scaled_axis() / (2.0 * h);
+            assert!((omega_fd - k.omega_body).norm() < 1e-8, "rate at {t}");
+        }
+    }
+
+    #[test]
+    fn stationary_body_feels_gravity_upward() {
+        let traj = Trajectory::Stationary {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0; 3],
+        };
+        let k = traj.kinematics(3.0);
+        assert!((k.specific_force_body - Vector3::new(0.0, 0.0, -GRAVITY)).norm() < 1e-12);
+        assert_eq!(k.omega_body, Vector3::zeros());
+    }
+
+    #[test]
+    fn oscillation_is_exactly_still_before_its_start() {
+        let traj = Trajectory::Hover {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0, -10.0, 0.0],
+            oscillation: Oscillation {
+                position_amplitude_m: [0.05; 3],
+                position_period_s: [3.0; 3],
+                attitude_amplitude_deg: [1.0; 3],
+                attitude_period_s: [4.0; 3],
+                start_s: 40.0,
+                ramp_s: 10.0,
+            },
+        };
+        let k = traj.kinematics(39.9);
+        assert_eq!(k.v, Vector3::zeros());
+        assert_eq!(k.omega_body, Vector3::zeros());
+        assert!(traj.kinematics(45.0).v.norm() > 1e-3);
+    }
+
+    #[test]
+    fn flight_returns_to_start_facing_back() {
+        let traj = busy_flight();
+        let Trajectory::Flight { rpy_deg, .. } = &traj else {
+            unreachable!()
+        };
+        let mut still = traj.clone();
+        if let Trajectory::Flight { oscillation, .. } = &mut still {
+            *oscillation = Oscillation::default();
+        }
+        let (p_start, _) = still.pose(0.0);
+        let (p_mid, _) = still.pose(3.5);
+        let (p_end, q_end) = still.pose(20.0);
+        assert!(((p_mid - p_start).norm() - 4.0).abs() < 1e-12);
+        assert!((p_end - p_start).norm() < 1e-12);
+        let yaw_end = q_end.euler_angles().2.to_degrees();
+        let expected = rpy_deg[2] + 180.0 - 360.0;
+        assert!((yaw_end - expected).abs() < 1e-9, "{yaw_end}");
+    }
+}
