@@ -119,10 +119,12 @@ struct DeviceClock {
 }
 
 impl DeviceClock {
-    fn new(config: ClockConfig) -> Self {
+    fn new(tick_hz: f64, modulus: u64) -> Self {
+        let config = ClockConfig::with_counter(tick_hz, modulus.clamp(2, 1 << 62));
         Self {
             unwrapped: Unwrapper::new(config.modulus),
-            estimator: ClockEstimator::new(config),
+            estimator: ClockEstimator::new(config)
+                .expect("the fixed tick rates and a clamped modulus always validate"),
         }
     }
 
@@ -130,10 +132,9 @@ impl DeviceClock {
     /// received at `earliest_receive_s` had the link no latency.
     fn observe(&mut self, raw: u64, earliest_receive_s: Option<f64>, tick_hz: f64) -> f64 {
         let ticks = self.unwrapped.unwrap(raw);
-        match earliest_receive_s {
-            Some(host) => self.estimator.observe(raw, host),
-            None => ticks as f64 / tick_hz,
-        }
+        earliest_receive_s
+            .and_then(|host| self.estimator.observe(raw, host))
+            .unwrap_or(ticks as f64 / tick_hz)
     }
 
     fn restarts(&self) -> u64 {
@@ -193,7 +194,7 @@ impl ScannerDecoder {
             index,
             decoder: scip::Decoder::new(),
             geometry,
-            clock: DeviceClock::new(ClockConfig::scip()),
+            clock: DeviceClock::new(1000.0, 1 << 24),
             counts: DecodeCounts::default(),
         }
     }
@@ -303,7 +304,7 @@ impl ImuDecoder {
     pub fn new(sample_time_modulus: u64, rate_hz: f64) -> Self {
         Self {
             framer: Framer::new(xbus::DEFAULT_MAX_PAYLOAD),
-            clock: DeviceClock::new(ClockConfig::with_counter(TICK_HZ, sample_time_modulus)),
+            clock: DeviceClock::new(TICK_HZ, sample_time_modulus),
             modulus: sample_time_modulus,
             output_interval_s: 1.0 / rate_hz,
             last_counter: None,
@@ -340,7 +341,7 @@ impl ImuDecoder {
                     let modulus = ProductCode::from_bytes(payload).sample_time_wrap();
                     if modulus != self.modulus {
                         self.modulus = modulus;
-                        self.clock = DeviceClock::new(ClockConfig::with_counter(TICK_HZ, modulus));
+                        self.clock = DeviceClock::new(TICK_HZ, modulus);
                     }
                 }
                 xbus::mid::OUTPUT_CONFIGURATION => {
