@@ -49,6 +49,14 @@ enum Command {
         #[arg(long)]
         tolerant: bool,
     },
+    /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
+    /// driver's emulator exactly as a live run records it, with /truth.
+    Simulate {
+        #[arg(long, value_name = "NAME|FILE")]
+        scenario: String,
+        #[arg(long, value_name = "FILE.mcap")]
+        out: PathBuf,
+    },
     /// Serve emulated sensors for a configuration (SCIP and Xbus on ptys, SCIP on TCP) so that
     /// `run` can be exercised with no hardware.
     ServeEmulators {
@@ -77,6 +85,7 @@ fn main() -> ExitCode {
             mavlink,
             tolerant,
         } => replay_recording(recording, out, realtime, mavlink, tolerant),
+        Command::Simulate { scenario, out } => simulate(&scenario, &out),
         Command::ServeEmulators { config } => serve_emulators(config),
     };
     match outcome {
@@ -155,6 +164,21 @@ fn replay_recording(
     let (summary, _) =
         replay::replay(&options, |_, _| EventCounter::default()).map_err(|e| e.to_string())?;
     print!("{summary}");
+    Ok(())
+}
+
+fn simulate(scenario: &str, out: &std::path::Path) -> Result<(), String> {
+    let summary =
+        ladar_odometer::daemon::simulate::simulate(scenario, out).map_err(|e| e.to_string())?;
+    println!(
+        "simulated {:.1} s into {}: {} scans, {} IMU samples, {} truth samples, {} chunks",
+        summary.duration_s,
+        out.display(),
+        summary.scans,
+        summary.imu_samples,
+        summary.truth_samples,
+        summary.chunks
+    );
     Ok(())
 }
 

@@ -20,4 +20,5 @@ pub mod replay;
 pub mod run;
 pub mod sensor_task;
 pub mod serve;
+pub mod simulate;
 pub mod watchdog;
