@@ -248,12 +248,11 @@ impl ScannerDecoder {
                         self.counts.dropped += 1;
                         continue;
                     };
-                    // The last byte cannot leave before the last requested step was measured.
-                    let measuring =
-                        f64::from(u32::from(data.range.end) + 1) * geometry.step_period();
+                    // A revolution is sent once it is complete, one scan period after step 0
+                    // (DESIGN 3; the simulator's convention too).
                     let t0 = self.clock.observe(
                         u64::from(data.timestamp),
-                        received.map(|r| r - measuring),
+                        received.map(|r| r - geometry.scan_period()),
                         1000.0,
                     );
                     self.counts.scans += 1;

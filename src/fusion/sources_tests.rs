@@ -5,7 +5,7 @@ use crate::daemon::recording::Direction;
 const MS: u64 = 1_000_000;
 
 /// Two seconds of a URG-04LX on a simulated host clock: the handshake, then scans whose last
-/// byte arrives 1 ms after the last step was measured. Returns the rx chunks and the host time
+/// byte arrives 1 ms after the revolution completed. Returns the rx chunks and the host time
 /// of step 0 of every transmitted scan.
 fn scanner_session(device_offset_ms: u32) -> (Vec<Exchanged>, Vec<u64>) {
     let model = scip::Model::urg_04lx();
@@ -14,7 +14,7 @@ fn scanner_session(device_offset_ms: u32) -> (Vec<Exchanged>, Vec<u64>) {
     let mut rig = ScipRig::new(model, scip::DeviceConfig::default(), device_offset_ms);
     let mut chunks = Vec::new();
     let mut step0s = Vec::new();
-    let tail_ns = ((f64::from(geometry.amax) + 1.0) * geometry.step_period() * 1e9) as u64 + MS;
+    let tail_ns = (geometry.scan_period() * 1e9) as u64 + MS;
     let mut next_step0 = None;
     for now in (0..2000).map(|ms| 1_000 * MS + ms * MS) {
         if let Some(step0) = next_step0.filter(|&s: &u64| s + tail_ns <= now) {
