@@ -57,11 +57,22 @@ enum Command {
         #[arg(long, value_name = "FILE.mcap")]
         out: PathBuf,
     },
-    /// Serve emulated sensors for a configuration (SCIP and Xbus on ptys, SCIP on TCP) so that
-    /// `run` can be exercised with no hardware.
+    /// Serve emulated sensors (SCIP and Xbus on ptys, SCIP on TCP where the configuration says
+    /// tcp:) in real time, so that `run` can be exercised with no hardware.
     ServeEmulators {
-        #[arg(long)]
-        config: PathBuf,
+        /// The sensors of this configuration, standing still in a box room.
+        #[arg(
+            long,
+            conflicts_with = "scenario",
+            required_unless_present = "scenario"
+        )]
+        config: Option<PathBuf>,
+        /// Or a scenario's rig flying through its scene (built-in name or TOML file).
+        #[arg(long, value_name = "NAME|FILE")]
+        scenario: Option<String>,
+        /// Write a configuration pointing at the emulators, for `run --config`.
+        #[arg(long, value_name = "FILE")]
+        write_config: Option<PathBuf>,
     },
 }
 
@@ -86,7 +97,11 @@ fn main() -> ExitCode {
             tolerant,
         } => replay_recording(recording, out, realtime, mavlink, tolerant),
         Command::Simulate { scenario, out } => simulate(&scenario, &out),
-        Command::ServeEmulators { config } => serve_emulators(config),
+        Command::ServeEmulators {
+            config,
+            scenario,
+            write_config,
+        } => serve_emulators(config, scenario, write_config),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -182,11 +197,20 @@ fn simulate(scenario: &str, out: &std::path::Path) -> Result<(), String> {
     Ok(())
 }
 
-fn serve_emulators(config: PathBuf) -> Result<(), String> {
+fn serve_emulators(
+    config: Option<PathBuf>,
+    scenario: Option<String>,
+    write_config: Option<PathBuf>,
+) -> Result<(), String> {
+    let source = match (&config, &scenario) {
+        (Some(path), _) => serve::Source::Config(path),
+        (None, Some(name)) => serve::Source::Scenario(name),
+        (None, None) => return Err("give --config FILE or --scenario NAME".into()),
+    };
     runtime()?.block_on(async {
         let cancel = CancellationToken::new();
         tokio::spawn(cancel_on_signal(cancel.clone()));
-        serve::serve_config(&config, cancel)
+        serve::serve_until_cancelled(source, write_config.as_deref(), cancel)
             .await
             .map_err(|e| e.to_string())
     })

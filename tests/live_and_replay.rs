@@ -229,9 +229,16 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
     std::fs::write(&emulator_path, &emulator_config).unwrap();
     let config = ladar_odometer::daemon::config::Config::load(&emulator_path).unwrap();
     let scene: SharedScene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
-    let served = serve::serve(&config, scene, &emulators, cancel_emulators.clone())
-        .await
-        .unwrap();
+    let models = serve::default_models(&config);
+    let served = serve::serve(
+        &config,
+        &models,
+        scene,
+        &emulators,
+        cancel_emulators.clone(),
+    )
+    .await
+    .unwrap();
     let imu = served.iter().find(|s| s.sensor == "imu").unwrap();
     let front = Proxy::start(front_port, &emulators, cancel_emulators.clone()).await;
     let pitched = Proxy::start(pitched_port, &emulators, cancel_emulators.clone()).await;

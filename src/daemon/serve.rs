@@ -90,8 +90,64 @@ impl Scene for StillRoom {
     }
 }
 
+/// A scenario's world and trajectory, measured in real time: the simulator's ray-cast scans at
+/// the asked step-0 time, and its noise-free IMU kinematics.
+pub struct SimulatedScene {
+    simulator: crate::sim::Simulator,
+    imu_to_body: nalgebra::UnitQuaternion<f64>,
+}
+
+impl SimulatedScene {
+    pub fn new(scenario: &crate::sim::Scenario) -> Result<Self, crate::sim::ScenarioError> {
+        let simulator = crate::sim::Simulator::new(scenario)?;
+        let imu_to_body = simulator
+            .imu()
+            .map_or_else(nalgebra::UnitQuaternion::identity, |imu| {
+                imu.mount_rotation()
+            });
+        Ok(Self {
+            simulator,
+            imu_to_body,
+        })
+    }
+}
+
+impl Scene for SimulatedScene {
+    fn ranges_mm(&mut self, scanner: usize, geometry: &ScannerGeometry, step0_s: f64) -> Vec<u32> {
+        let count = (geometry.amax - geometry.amin + 1) as usize;
+        let mut ranges = vec![0; count];
+        if scanner >= self.simulator.scanners().len() {
+            return ranges;
+        }
+        let scan = self.simulator.scan(scanner, step0_s);
+        let offset = scan.first_step.saturating_sub(geometry.amin) as usize;
+        for (slot, range) in ranges.iter_mut().skip(offset).zip(&scan.ranges_m) {
+            *slot = (range * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32;
+        }
+        ranges
+    }
+
+    fn imu(&mut self, t: f64) -> ([f64; 3], [f64; 3]) {
+        let k = self.simulator.kinematics_at(t);
+        let body_to_imu = self.imu_to_body.inverse();
+        (
+            (body_to_imu * k.specific_force_body).into(),
+            (body_to_imu * k.omega_body).into(),
+        )
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
+    #[error("{0}")]
+    Scenario(#[from] crate::sim::ScenarioError),
+    #[error("{0}")]
+    Simulate(#[from] super::simulate::SimulateError),
+    #[error("cannot write {path}: {source}")]
+    Write {
+        path: std::path::PathBuf,
+        source: io::Error,
+    },
     #[error("{0}")]
     Config(#[from] ConfigErrors),
     #[error("cannot listen on {address} for sensor `{sensor}`: {source} (is another emulator or sensor using it?)")]
@@ -112,14 +168,57 @@ pub struct Served {
     pub connection: String,
 }
 
-/// Serves every sensor of the configuration file until `cancel`, printing where each is.
-pub async fn serve_config(path: &Path, cancel: CancellationToken) -> Result<(), ServeError> {
-    let config = Config::load(path)?;
-    let scene: SharedScene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
+/// What to emulate: the sensors of a configuration file in a still box room, or a scenario's
+/// rig flying its trajectory through its scene (scanners on ptys).
+pub enum Source<'a> {
+    Config(&'a Path),
+    Scenario(&'a str),
+}
+
+/// Serves every sensor until `cancel`, printing where each is; with `write_config`, also writes
+/// a configuration whose connections point at the emulators, ready for `run --config`.
+pub async fn serve_until_cancelled(
+    source: Source<'_>,
+    write_config: Option<&Path>,
+    cancel: CancellationToken,
+) -> Result<(), ServeError> {
+    let (models, config, text, scene): (Vec<scip::Model>, Config, String, SharedScene) =
+        match source {
+            Source::Config(path) => {
+                let (config, text) = Config::load_with_text(path)?;
+                let scene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
+                (default_models(&config), config, text, scene)
+            }
+            Source::Scenario(name) => {
+                let scenario = crate::sim::Scenario::resolve(name)?;
+                let text = super::simulate::rig_config(&scenario)?;
+                let config = Config::parse(&text, Path::new(name))?;
+                let models = super::simulate::emulated_models(&scenario);
+                let scene = Arc::new(Mutex::new(SimulatedScene::new(&scenario)?));
+                (models, config, text, scene)
+            }
+        };
     let tracker = tokio_util::task::TaskTracker::new();
-    let served = serve(&config, scene, &tracker, cancel).await?;
-    for s in &served {
+    let served = serve(&config, &models, scene, &tracker, cancel).await?;
+    let mut runnable = text;
+    for (s, original) in served.iter().zip(
+        config
+            .scanners
+            .iter()
+            .map(|s| &s.connection)
+            .chain(std::iter::once(&config.imu.connection)),
+    ) {
         println!("{} {}", s.sensor, s.connection);
+        runnable = runnable.replace(
+            &format!("connection = \"{original}\""),
+            &format!("connection = \"{}\"", s.connection),
+        );
+    }
+    if let Some(path) = write_config {
+        std::fs::write(path, runnable).map_err(|source| ServeError::Write {
+            path: path.to_path_buf(),
+            source,
+        })?;
     }
     tracker.close();
     tracker.wait().await;
@@ -130,6 +229,7 @@ pub async fn serve_config(path: &Path, cancel: CancellationToken) -> Result<(), 
 /// says, serial sensors get a fresh pty (its path is in the result).
 pub async fn serve(
     config: &Config,
+    models: &[scip::Model],
     scene: SharedScene,
     tracker: &tokio_util::task::TaskTracker,
     cancel: CancellationToken,
@@ -137,7 +237,10 @@ pub async fn serve(
     let start = Instant::now();
     let mut served = Vec::new();
     for (index, scanner) in config.scanners.iter().enumerate() {
-        let model = model_for(index);
+        let model = models
+            .get(index)
+            .cloned()
+            .unwrap_or_else(|| default_model(index));
         let emulate = ScipEmulation {
             model,
             scanner: index,
@@ -180,8 +283,12 @@ pub async fn serve(
     Ok(served)
 }
 
-/// Scanner models by position: a URG-04LX level, UTM-30LX for the others.
-fn model_for(index: usize) -> scip::Model {
+/// Scanner models for a configuration that does not say: a URG-04LX first, UTM-30LX after.
+pub fn default_models(config: &Config) -> Vec<scip::Model> {
+    (0..config.scanners.len()).map(default_model).collect()
+}
+
+fn default_model(index: usize) -> scip::Model {
     if index == 0 {
         scip::Model::urg_04lx()
     } else {

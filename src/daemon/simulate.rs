@@ -295,6 +295,18 @@ fn clamp_u16(step: u32) -> u16 {
     u16::try_from(step).unwrap_or(u16::MAX)
 }
 
+/// The SCIP models that answer PP with the scenario's scanner geometries, in scenario order.
+pub fn emulated_models(scenario: &Scenario) -> Vec<scip::Model> {
+    scenario
+        .scanners
+        .iter()
+        .map(|s| {
+            let geometry = s.resolved_geometry().unwrap_or(ScannerGeometry::UTM_30LX);
+            emulated_model(&s.name, &geometry)
+        })
+        .collect()
+}
+
 /// A SCIP model answering PP with `geometry`.
 fn emulated_model(name: &str, geometry: &ScannerGeometry) -> scip::Model {
     let mut model = scip::Model::utm_30lx();
