@@ -98,7 +98,8 @@ impl ChunkQueue {
     }
 }
 
-fn is_power_of_ten(mut n: u64) -> bool {
+/// 1, 10, 100, ...: when a growing count is worth a log line.
+pub(crate) fn is_power_of_ten(mut n: u64) -> bool {
     while n >= 10 && n.is_multiple_of(10) {
         n /= 10;
     }

@@ -131,6 +131,7 @@ pub async fn run(
                     clock,
                     streaming: &streaming,
                     state: &mut state,
+                    garbage: 0,
                 };
                 let outcome = session.run(port, &cancel).await;
                 streaming.store(false, Ordering::Relaxed);
@@ -173,6 +174,7 @@ struct Session<'a> {
     clock: HostClock,
     streaming: &'a AtomicBool,
     state: &'a mut LinkState,
+    garbage: u64,
 }
 
 /// The driver's state machine behind one interface. One per session, never moved in bulk.
@@ -185,6 +187,8 @@ enum Device {
 /// What a device said that the task acts on.
 enum Notice {
     Streaming,
+    /// A corrupt reply or frame was dropped.
+    Garbage,
     Failed(String),
     Warning(String),
 }
@@ -245,6 +249,7 @@ impl Device {
                     match event {
                         scip::DeviceEvent::Scan(scan) => d.recycle(scan),
                         scip::DeviceEvent::StreamStarted { .. } => out.push(Notice::Streaming),
+                        scip::DeviceEvent::DecodeError(_) => out.push(Notice::Garbage),
                         scip::DeviceEvent::Error(e @ scip::DeviceError::StreamStalled)
                         | scip::DeviceEvent::Error(e @ scip::DeviceError::Status { .. }) => {
                             out.push(Notice::Warning(e.to_string()))
@@ -258,6 +263,9 @@ impl Device {
                 while let Some(event) = d.poll_event() {
                     match event {
                         xbus::Event::Measuring => out.push(Notice::Streaming),
+                        xbus::Event::FrameDropped(_) | xbus::Event::BadMeasurement(_) => {
+                            out.push(Notice::Garbage)
+                        }
                         xbus::Event::Failed(e) => out.push(Notice::Failed(e.to_string())),
                         xbus::Event::DataTimeout { silent_for } => out.push(Notice::Warning(
                             format!("IMU silent for {:.1} s", silent_for.as_secs_f64()),
@@ -312,6 +320,17 @@ impl Session<'_> {
                     }
                 }
                 Notice::Warning(text) => tracing::warn!(sensor = %self.link.name, "{text}"),
+                Notice::Garbage => {
+                    self.garbage += 1;
+                    if super::chunk_queue::is_power_of_ten(self.garbage) {
+                        tracing::warn!(
+                            sensor = %self.link.name,
+                            dropped = self.garbage,
+                            "corrupt bytes from the sensor dropped: check the cable, baud rate and that {} is this sensor",
+                            self.link.connection
+                        );
+                    }
+                }
                 Notice::Failed(text) => return Err(text),
             }
         }
