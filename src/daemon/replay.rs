@@ -87,7 +87,7 @@ impl fmt::Display for ReplaySummary {
         for (name, c) in &self.sensors {
             writeln!(
                 f,
-                "  {name}: {} scans, {} IMU samples, {} decode errors, {} dropped, {} lost packets, {} clock restarts",
+                "  {name}: {} scans, {} IMU samples, {} decode errors, {} dropped (before any PP geometry, or without device time), {} lost packets, {} clock restarts",
                 c.scans, c.imu_samples, c.decode_errors, c.dropped, c.lost_packets, c.clock_restarts
             )?;
         }

@@ -67,7 +67,16 @@ pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), Strin
     let SensorConnection::Serial { path, .. } = connection else {
         return Ok(());
     };
-    match std::fs::OpenOptions::new().read(true).write(true).open(path) {
+    use std::os::unix::fs::OpenOptionsExt;
+    // Linux O_NONBLOCK | O_NOCTTY: a UART waiting for carrier must not hang the start-up check,
+    // and a sensor port must never become our controlling terminal.
+    const NONBLOCKING_NO_CTTY: i32 = 0o4000 | 0o400;
+    match std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(NONBLOCKING_NO_CTTY)
+        .open(path)
+    {
         Ok(_) => Ok(()),
         Err(e) if e.kind() == io::ErrorKind::NotFound => Err(format!(
             "sensor `{name}`: serial port {} does not exist: plug the sensor in, check the udev rule, or fix its `connection`",
@@ -75,6 +84,10 @@ pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), Strin
         )),
         Err(e) if e.kind() == io::ErrorKind::PermissionDenied => Err(format!(
             "sensor `{name}`: no permission to open {}: add the daemon's user to the `dialout` group (or install the udev rule)",
+            path.display()
+        )),
+        Err(e) if e.raw_os_error() == Some(16) => Err(format!(
+            "sensor `{name}`: {} is busy: another program (or another ladar-odometer) holds it; stop that one first",
             path.display()
         )),
         Err(e) => Err(format!(
