@@ -144,7 +144,7 @@ impl<E: Estimator> Pipeline<E> {
         if chunk.direction != Direction::Rx || chunk.sensor >= self.decoders.len() {
             return;
         }
-        let t = chunk.log_time_ns as f64 * 1e-9;
+        let t = chunk.log_time_ns as f64 / 1e9;
         if chunk.data.is_empty() {
             self.decoders[chunk.sensor].link_lost();
             self.set_stale(chunk.sensor, true, t);
@@ -181,7 +181,7 @@ impl<E: Estimator> Pipeline<E> {
             let silent = self.last_rx_ns[sensor]
                 .is_some_and(|last| now_ns.saturating_sub(last) > STALE_AFTER_NS);
             if silent {
-                self.set_stale(sensor, true, now_ns as f64 * 1e-9);
+                self.set_stale(sensor, true, now_ns as f64 / 1e9);
             }
         }
     }
@@ -274,5 +274,74 @@ impl Estimator for EventCounter {
     }
     fn epoch_counts(_: &()) -> EpochCounts {
         EpochCounts::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn specs() -> Vec<SensorSpec> {
+        let scanner = |index: usize, name: &str| SensorSpec {
+            name: name.into(),
+            encoding: Encoding::Scip2,
+            setup: SensorSetup::Scanner {
+                index,
+                geometry: None,
+            },
+        };
+        vec![scanner(0, "front"), scanner(1, "pitched")]
+    }
+
+    fn rx(sensor: usize, ms: u64, data: &[u8]) -> Chunk {
+        Chunk {
+            sensor,
+            direction: Direction::Rx,
+            log_time_ns: ms * 1_000_000,
+            data: data.to_vec(),
+        }
+    }
+
+    fn stale_marks(pipeline: &Pipeline<EventTrace>) -> Vec<(usize, bool, f64)> {
+        pipeline
+            .estimator()
+            .calls
+            .iter()
+            .filter_map(|c| match c {
+                Traced::Stale { sensor, stale, t } => Some((*sensor, *stale, *t)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_silent_sensor_goes_stale_when_another_speaks_and_fresh_on_its_next_bytes() {
+        let mut pipeline = Pipeline::new(specs(), EventTrace::default());
+        let mut ignore = |_: Output<()>| {};
+        pipeline.push(&rx(0, 100, b"\n"), &mut ignore);
+        pipeline.push(&rx(1, 100, b"\n"), &mut ignore);
+        pipeline.push(&rx(1, 1_000, b"\n"), &mut ignore);
+        assert!(
+            stale_marks(&pipeline).is_empty(),
+            "900 ms of silence is fine"
+        );
+        pipeline.push(&rx(1, 1_200, b"\n"), &mut ignore);
+        assert!(pipeline.is_stale(0));
+        pipeline.push(&rx(0, 1_300, b"\n"), &mut ignore);
+        assert_eq!(stale_marks(&pipeline), [(0, true, 1.2), (0, false, 1.3)]);
+    }
+
+    #[test]
+    fn an_empty_rx_chunk_is_a_lost_link_and_transmitted_bytes_are_not_decoded() {
+        let mut pipeline = Pipeline::new(specs(), EventTrace::default());
+        let mut ignore = |_: Output<()>| {};
+        pipeline.push(&rx(1, 10, b""), &mut ignore);
+        let tx = Chunk {
+            direction: Direction::Tx,
+            ..rx(0, 20, b"QT\n")
+        };
+        pipeline.push(&tx, &mut ignore);
+        assert_eq!(stale_marks(&pipeline), [(1, true, 0.01)]);
+        assert_eq!(pipeline.decode_counts()[0].chunks, 0);
     }
 }
