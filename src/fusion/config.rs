@@ -26,6 +26,10 @@ pub struct FusionConfig {
     /// A scanner whose newest scan is older than this, s, on the IMU's host time, marks the
     /// estimates degraded. Default 1.0 s.
     pub scan_stale_s: f64,
+    /// Factor on the odometer's rotation and displacement covariances before they are fused.
+    /// Consecutive epochs share planes, so their errors are correlated, which the filter's
+    /// independent updates do not model; the factor keeps the fused covariance honest.
+    pub measurement_covariance_scale: f64,
 }
 
 impl Default for FusionConfig {
@@ -36,6 +40,7 @@ impl Default for FusionConfig {
             max_scan_skew_s: 0.05,
             estimate_decimation: 1,
             scan_stale_s: 1.0,
+            measurement_covariance_scale: 1.0,
         }
     }
 }
@@ -83,7 +88,13 @@ pub enum FusionError {
 impl FusionConfig {
     pub fn validate(&self) -> Result<(), FusionError> {
         let positive = "a finite number above 0";
-        let checks: [(&'static str, f64, bool, &'static str); 4] = [
+        let checks: [(&'static str, f64, bool, &'static str); 5] = [
+            (
+                "measurement_covariance_scale",
+                self.measurement_covariance_scale,
+                self.measurement_covariance_scale >= 1.0,
+                "a finite number of 1 or more",
+            ),
             (
                 "epoch_rate_hz",
                 self.epoch_rate_hz,

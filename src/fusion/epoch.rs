@@ -4,6 +4,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
+use super::anchor::Anchored;
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
@@ -20,6 +21,8 @@ use crate::sensors::Scan;
 struct Cleared {
     rotation: Option<Solution>,
     displacement: Option<Solution>,
+    /// Observable directions of the displacement (all but the anchored ones).
+    displacement_observability: Observability,
     excluded: Vec<usize>,
 }
 
@@ -77,20 +80,29 @@ impl Fusion {
             translation_covariance: prior.translation_covariance,
         };
         let epoch = self.odometer.solve(previous, current, &prior);
-        let report = self.check_integrity(previous, current, &epoch);
-        let cleared = self.clear(&epoch, &report);
+        let anchored = Anchored::new(previous, current, &epoch, &prior);
+        let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
+        let cleared = self.clear(&epoch, &report, anchored.as_ref());
         record.matched = epoch.matches.len();
-        record.used = record.matched - cleared.excluded.len();
         record.excluded_planes = cleared
             .excluded
             .iter()
             .filter_map(|&k| epoch.matches.get(k))
             .map(|m| current.planes[m.current].id)
             .collect();
+        record.used = record.matched - record.excluded_planes.len();
+        record.unobservable_displacement = anchored
+            .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
+            .unwrap_or_default();
         self.integrity = Some(report.status.clone());
         record.status = Some(report.status.clone());
         record.integrity = Some(report);
-        let measurement = measurement(previous.t_ref, current.t_ref, &cleared);
+        let measurement = measurement(
+            previous.t_ref,
+            current.t_ref,
+            &cleared,
+            self.config.measurement_covariance_scale,
+        );
         record.rotation = measurement
             .rotation
             .map(|r| WithCovariance::new(&r.rotation_vector, &r.covariance));
@@ -121,6 +133,7 @@ impl Fusion {
         previous: &EpochPlanes,
         current: &EpochPlanes,
         epoch: &OdometryEpoch,
+        anchored: Option<&Anchored>,
     ) -> EpochReport {
         let odometer = &self.odometer;
         let mut rotation = |excluded: &[usize]| {
@@ -128,14 +141,18 @@ impl Fusion {
                 .resolve(previous, current, epoch, excluded)
                 .rotation
         };
-        let mut displacement = |excluded: &[usize]| {
-            odometer
-                .resolve(previous, current, epoch, excluded)
-                .displacement
+        let mut displacement = |excluded: &[usize]| match anchored {
+            Some(anchored) => anchored.solve(excluded),
+            None => {
+                odometer
+                    .resolve(previous, current, epoch, excluded)
+                    .displacement
+            }
         };
+        let first = displacement(&[]);
         self.monitor.check_epoch(
             epoch.rotation.clone(),
-            epoch.displacement.clone(),
+            first,
             &mut rotation,
             &mut displacement,
         )
@@ -143,11 +160,23 @@ impl Fusion {
 
     /// With exclusion: the solves integrity cleared (both, or the testable one of an
     /// under-determined epoch). Without: every solve that succeeded, with all planes.
-    fn clear(&self, epoch: &OdometryEpoch, report: &EpochReport) -> Cleared {
+    fn clear(
+        &self,
+        epoch: &OdometryEpoch,
+        report: &EpochReport,
+        anchored: Option<&Anchored>,
+    ) -> Cleared {
+        let displacement_observability = anchored.map_or_else(Observability::full, |a| {
+            Observability::from_unobservable(&a.unobservable)
+        });
         if !self.config.exclusion {
             return Cleared {
                 rotation: epoch.rotation.as_ref().ok().cloned(),
-                displacement: epoch.displacement.as_ref().ok().cloned(),
+                displacement: match anchored {
+                    Some(anchored) => anchored.solve(&[]).ok(),
+                    None => epoch.displacement.as_ref().ok().cloned(),
+                },
+                displacement_observability,
                 excluded: Vec::new(),
             };
         }
@@ -159,13 +188,14 @@ impl Fusion {
         Cleared {
             rotation: part(&report.rotation),
             displacement: part(&report.displacement),
+            displacement_observability,
             excluded: report.excluded.clone(),
         }
     }
 }
 
 /// The filter measurement from the cleared solves.
-fn measurement(t_ref: f64, t: f64, cleared: &Cleared) -> FilterRelativePose {
+fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelativePose {
     let rotation = cleared.rotation.as_ref().map(|solution| {
         // The odometer's covariance is of a left perturbation in body-i axes; the filter's
         // residual is a right one, in body-j axes: Exp(a) C = C Exp(C^T a).
@@ -174,7 +204,7 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared) -> FilterRelativePose {
             .into_inner();
         RelativeRotation {
             rotation_vector: solution.x,
-            covariance: symmetric(c.transpose() * solution.covariance * c),
+            covariance: symmetric(c.transpose() * solution.covariance * c) * scale,
             observability: Observability::full(),
         }
     });
@@ -183,8 +213,8 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared) -> FilterRelativePose {
         .as_ref()
         .map(|solution| RelativeTranslation {
             displacement: solution.x,
-            covariance: symmetric(solution.covariance),
-            observability: Observability::full(),
+            covariance: symmetric(solution.covariance) * scale,
+            observability: cleared.displacement_observability,
         });
     FilterRelativePose {
         t_ref,
@@ -218,6 +248,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         matched: 0,
         used: 0,
         excluded_planes: Vec::new(),
+        unobservable_displacement: Vec::new(),
         status: None,
         integrity: None,
         rotation: None,

@@ -7,6 +7,7 @@
 //! the relative pose against the clone of the pose at the previous epoch. `evaluate` drives the
 //! simulator through it and measures the accuracy against truth.
 
+mod anchor;
 pub mod clock;
 pub mod config;
 mod epoch;

@@ -89,6 +89,9 @@ pub struct EpochRecord {
     pub used: usize,
     /// Ids (in this epoch's planes) of the planes integrity excluded.
     pub excluded_planes: Vec<usize>,
+    /// Directions (body i) no matched plane constrained: anchored to the filter's prior for
+    /// the solve and left out of the fused displacement.
+    pub unobservable_displacement: Vec<[f64; 3]>,
     /// Verdict of the integrity monitor, when the epoch was solved.
     pub status: Option<IntegrityStatus>,
     /// Test statistics, thresholds, minimum detectable biases and protection levels.
