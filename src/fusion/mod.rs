@@ -1,4 +1,232 @@
-//! Pure wiring of IMU samples and scans, in time order, through the core and the filter.
+//! Pure wiring of IMU samples and scans, in time order, through the core and the filter
+//! (DESIGN.md 4.9): no I/O, no clock, no tokio; the same inputs give the same outputs bit for bit.
+//!
+//! `Fusion` pairs the latest scan of each scanner into an odometry epoch at the configured rate
+//! (`epoch`), deskews them with the filter's pose history, extracts planes, matches them with
+//! the previous epoch's under the filter's relative-pose prior, solves, runs integrity and fuses
+//! the relative pose against the clone of the pose at the previous epoch. `evaluate` drives the
+//! simulator through it and measures the accuracy against truth.
 
+mod anchor;
 pub mod clock;
+pub mod config;
+mod epoch;
+pub mod evaluate;
+pub mod record;
 pub mod sources;
+
+pub use config::{FusionConfig, FusionError, FusionSettings};
+pub use record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
+
+use crate::estimate::{Estimate, IntegrityStatus};
+use crate::filter::{Eskf, FilterPhase, ImuOutcome};
+use crate::integrity::IntegrityMonitor;
+use crate::odometry::{EpochPlanes, Odometer, ScannerSetup};
+use crate::sensors::{ImuSample, Scan};
+
+/// A source whose staleness the daemon's watchdog reports.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sensor {
+    Imu,
+    Scanner(usize),
+}
+
+/// Counts of input the fusion set aside.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FusionCounters {
+    /// Scans naming a scanner other than 0 or 1.
+    pub unknown_scanner: u64,
+    /// Scans with a non-finite start time.
+    pub bad_scan_time: u64,
+    /// Scan pairs further apart than `max_scan_skew_s`.
+    pub skewed_pairs: u64,
+    pub epochs: u64,
+}
+
+/// The previous epoch: its planes and whether the filter holds a clone of its pose.
+#[derive(Debug, Clone)]
+struct Reference {
+    planes: EpochPlanes,
+    cloned: bool,
+}
+
+pub struct Fusion {
+    config: FusionConfig,
+    filter: Eskf,
+    odometer: Odometer,
+    monitor: IntegrityMonitor,
+    scanners: [ScannerSetup; 2],
+    /// Newest scan of each scanner not yet used in a pair.
+    pending: [Option<Scan>; 2],
+    /// Mid-scan time of each scanner's newest scan.
+    last_scan: [Option<f64>; 2],
+    stale: [bool; 2],
+    imu_stale: bool,
+    first_imu: Option<f64>,
+    /// Reference time of the latest scan pair, epoch or not.
+    last_pair: Option<f64>,
+    reference: Option<Reference>,
+    /// Storage for the current epoch's planes, swapped with the reference's.
+    current: EpochPlanes,
+    integrity: Option<IntegrityStatus>,
+    propagated: u64,
+    counters: FusionCounters,
+}
+
+impl Fusion {
+    pub fn new(settings: FusionSettings, scanners: [ScannerSetup; 2]) -> Result<Self, FusionError> {
+        settings.validate()?;
+        Ok(Self {
+            odometer: Odometer::new(scanners, settings.odometry)?,
+            monitor: IntegrityMonitor::new(settings.integrity)?,
+            filter: Eskf::new(settings.filter)?,
+            config: settings.fusion,
+            scanners,
+            pending: [None, None],
+            last_scan: [None; 2],
+            stale: [false; 2],
+            imu_stale: false,
+            first_imu: None,
+            last_pair: None,
+            reference: None,
+            current: EpochPlanes::default(),
+            integrity: None,
+            propagated: 0,
+            counters: FusionCounters::default(),
+        })
+    }
+
+    /// Feeds one IMU sample (host time, in time order with the scans). Returns an estimate
+    /// every `estimate_decimation` propagated samples once the filter is aligned.
+    pub fn push_imu(&mut self, sample: ImuSample) -> Option<Estimate> {
+        let outcome = self.filter.push_imu(&sample);
+        if self.first_imu.is_none() && sample.time().is_finite() {
+            self.first_imu = Some(sample.time());
+        }
+        if !matches!(
+            outcome,
+            ImuOutcome::Propagated | ImuOutcome::Aligned | ImuOutcome::Gap { .. }
+        ) || self.filter.phase() == FilterPhase::Aligning
+        {
+            return None;
+        }
+        self.propagated += 1;
+        if !self
+            .propagated
+            .is_multiple_of(u64::from(self.config.estimate_decimation))
+        {
+            return None;
+        }
+        Some(self.estimate())
+    }
+
+    /// Feeds one complete scan (its `sensor` picks the scanner). Returns the record of the
+    /// odometry epoch it completed, if it completed one.
+    pub fn push_scan(&mut self, scan: Scan) -> Option<EpochRecord> {
+        if scan.sensor >= 2 {
+            self.counters.unknown_scanner += 1;
+            return None;
+        }
+        if !scan.t0.is_finite() {
+            self.counters.bad_scan_time += 1;
+            return None;
+        }
+        let sensor = scan.sensor;
+        self.last_scan[sensor] = Some(self.mid_scan_time(&scan));
+        self.pending[sensor] = Some(scan);
+        let (Some(first), Some(second)) = (&self.pending[0], &self.pending[1]) else {
+            return None;
+        };
+        let t_ref = self.mid_scan_time(first);
+        if (self.mid_scan_time(second) - t_ref).abs() > self.config.max_scan_skew_s {
+            self.counters.skewed_pairs += 1;
+            // The older scan can only get further from any future partner.
+            let older = usize::from(self.mid_scan_time(second) < t_ref);
+            self.pending[older] = None;
+            return None;
+        }
+        let scans = [self.pending[0].take()?, self.pending[1].take()?];
+        if !self.epoch_due(t_ref) {
+            return None;
+        }
+        self.counters.epochs += 1;
+        Some(self.run_epoch(&scans, t_ref))
+    }
+
+    /// The watchdog's verdict on a source; a stale source marks the estimates degraded.
+    pub fn mark_stale(&mut self, sensor: Sensor, stale: bool) {
+        match sensor {
+            Sensor::Imu => self.imu_stale = stale,
+            Sensor::Scanner(k) if k < 2 => self.stale[k] = stale,
+            Sensor::Scanner(_) => {}
+        }
+    }
+
+    /// Replaces a scanner's geometry and mount (its PP was re-read). The previous epoch's
+    /// planes stay valid: they are in the body frame.
+    pub fn set_scanner(&mut self, index: usize, setup: ScannerSetup) -> Result<(), FusionError> {
+        if index >= 2 {
+            return Err(FusionError::NoSuchScanner(index));
+        }
+        let mut scanners = self.scanners;
+        scanners[index] = setup;
+        self.odometer = Odometer::new(scanners, self.odometer.config().clone())?;
+        self.scanners = scanners;
+        self.pending[index] = None;
+        Ok(())
+    }
+
+    /// The filter's current estimate with the fusion's integrity verdict and degradation.
+    pub fn estimate(&self) -> Estimate {
+        let mut estimate = self.filter.estimate();
+        estimate.integrity = self.integrity.clone();
+        estimate.degraded |= self.imu_stale || self.stale.iter().any(|&s| s) || self.scans_stale();
+        estimate
+    }
+
+    pub fn filter(&self) -> &Eskf {
+        &self.filter
+    }
+
+    pub fn counters(&self) -> FusionCounters {
+        self.counters
+    }
+
+    pub fn config(&self) -> &FusionConfig {
+        &self.config
+    }
+
+    /// Reference time of a scan: the time of its middle reading.
+    fn mid_scan_time(&self, scan: &Scan) -> f64 {
+        let geometry = &self.scanners[scan.sensor].geometry;
+        scan.time_of(scan.ranges_m.len() / 2, geometry)
+    }
+
+    /// Whether a scanner has been silent for `scan_stale_s` on the IMU's time.
+    fn scans_stale(&self) -> bool {
+        let Some(now) = self.filter.time() else {
+            return false;
+        };
+        let since_start = self.first_imu.unwrap_or(now);
+        self.last_scan
+            .iter()
+            .any(|last| now - last.unwrap_or(since_start) > self.config.scan_stale_s)
+    }
+
+    /// One epoch per `1 / epoch_rate_hz`, within half a pair interval so a rate equal to the
+    /// scan rate takes every pair.
+    fn epoch_due(&mut self, t_ref: f64) -> bool {
+        let pair_interval = self.last_pair.map_or(0.0, |last| t_ref - last);
+        self.last_pair = Some(t_ref);
+        match &self.reference {
+            None => true,
+            Some(reference) => {
+                t_ref - reference.planes.t_ref
+                    >= self.config.epoch_interval_s() - 0.5 * pair_interval
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

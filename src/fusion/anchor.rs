@@ -1,0 +1,202 @@
+//! An under-determined displacement still measures its observable directions (three walls and a
+//! floor in a long hallway pin down everything but the motion along it). The core refuses to
+//! solve it, so each unobservable direction is anchored with a pseudo-plane carrying the
+//! filter's prior along it; the solve and the integrity test then run as usual, and the filter
+//! fuses only the observable directions, so the anchor itself is never fused.
+//!
+//! The anchor's information lies only along its unobservable direction, where the planes have
+//! none, so the solution's observable part is the planes' alone.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::estimation::{Solution, SolveError};
+use crate::odometry::displacement::solve_displacement;
+use crate::odometry::matching::PlaneMatch;
+use crate::odometry::planes::{LineRef, Plane};
+use crate::odometry::uncertainty::PlaneUncertainty;
+use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
+
+/// Smallest sigma given to an anchor, m: keeps its row's weight within the condition limit.
+const MIN_ANCHOR_SIGMA_M: f64 = 0.01;
+
+/// An epoch's planes and matches with one pseudo-plane per unobservable direction appended.
+pub(super) struct Anchored {
+    previous: Vec<Plane>,
+    current: Vec<Plane>,
+    matches: Vec<PlaneMatch>,
+    rotation: Option<UnitQuaternion<f64>>,
+    prior: Vector3<f64>,
+    pub unobservable: Vec<Vector3<f64>>,
+}
+
+impl Anchored {
+    /// `None` unless the displacement was under-determined with at least one observable
+    /// direction.
+    pub fn new(
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        epoch: &OdometryEpoch,
+        prior: &RelativePose,
+    ) -> Option<Self> {
+        let Err(SolveError::UnderDetermined { unobservable }) = &epoch.displacement else {
+            return None;
+        };
+        if unobservable.is_empty() || unobservable.len() >= 3 || epoch.matches.is_empty() {
+            return None;
+        }
+        let rotation = epoch
+            .rotation
+            .as_ref()
+            .ok()
+            .map(|solution| UnitQuaternion::from_scaled_axis(solution.x));
+        let mut anchored = Self {
+            previous: previous.planes.clone(),
+            current: current.planes.clone(),
+            matches: epoch.matches.clone(),
+            rotation,
+            prior: prior.translation,
+            unobservable: Vec::with_capacity(unobservable.len()),
+        };
+        for direction in unobservable {
+            let u = direction.normalize();
+            let sigma = u
+                .dot(&(prior.translation_covariance * u))
+                .sqrt()
+                .max(MIN_ANCHOR_SIGMA_M);
+            anchored.push(u, sigma);
+        }
+        Some(anchored)
+    }
+
+    /// A plane pair whose displacement row reads `u . dR = u . prior` with sigma `sigma`.
+    fn push(&mut self, u: Vector3<f64>, sigma: f64) {
+        let plane = |id: usize, normal: Vector3<f64>, rho: f64, sigma_rho: f64| Plane {
+            id,
+            normal,
+            rho,
+            uncertainty: PlaneUncertainty {
+                normal_covariance: Matrix3::zeros(),
+                sigma_normal: 0.0,
+                sigma_rho,
+            },
+            lines: [LineRef {
+                scanner: 0,
+                segment: usize::MAX,
+            }; 2],
+            crossing: false,
+            confirmed: false,
+        };
+        // The row's normal is the mean of n_i and C n_j: make both u.
+        let current_normal = self.rotation.map_or(u, |c| c.inverse() * u);
+        let (i, j) = (self.previous.len(), self.current.len());
+        self.previous.push(plane(i, u, u.dot(&self.prior), sigma));
+        self.current.push(plane(j, current_normal, 0.0, 0.0));
+        self.matches.push(PlaneMatch {
+            previous: i,
+            current: j,
+            distance_squared: 0.0,
+        });
+        self.unobservable.push(u);
+    }
+
+    /// The anchored displacement without the matches in `excluded`.
+    pub fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
+        solve_displacement(
+            &self.previous,
+            &self.current,
+            &self.matches,
+            self.rotation.as_ref(),
+            &self.prior,
+            excluded,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::Observability;
+
+    fn plane(id: usize, normal: [f64; 3], rho: f64) -> Plane {
+        Plane {
+            id,
+            normal: Vector3::from(normal),
+            rho,
+            uncertainty: PlaneUncertainty {
+                normal_covariance: Matrix3::identity() * 1e-8,
+                sigma_normal: 1e-4,
+                sigma_rho: 0.005,
+            },
+            lines: [LineRef {
+                scanner: 0,
+                segment: 0,
+            }; 2],
+            crossing: true,
+            confirmed: false,
+        }
+    }
+
+    #[test]
+    fn a_hallway_displacement_keeps_its_observable_part_and_anchors_the_rest() {
+        let truth = Vector3::new(0.8, 0.05, -0.02);
+        let walls = [
+            ([0.0, 1.0, 0.0], 1.1),
+            ([0.0, -1.0, 0.0], 1.1),
+            ([0.0, 0.0, 1.0], 1.2),
+        ];
+        let epoch_planes = |shift: &Vector3<f64>, t_ref: f64| EpochPlanes {
+            t_ref,
+            planes: walls
+                .iter()
+                .enumerate()
+                .map(|(k, (n, rho))| plane(k, *n, rho - Vector3::from(*n).dot(shift)))
+                .collect(),
+            ..EpochPlanes::default()
+        };
+        let (previous, current) = (
+            epoch_planes(&Vector3::zeros(), 0.0),
+            epoch_planes(&truth, 1.0),
+        );
+        let matches: Vec<PlaneMatch> = (0..3)
+            .map(|k| PlaneMatch {
+                previous: k,
+                current: k,
+                distance_squared: 0.0,
+            })
+            .collect();
+        let mut prior = RelativePose::stationary(0.01, 0.3);
+        prior.translation = Vector3::new(0.7, 0.0, 0.0);
+        let displacement = solve_displacement(
+            &previous.planes,
+            &current.planes,
+            &matches,
+            None,
+            &prior.translation,
+            &[],
+        );
+        assert!(matches!(
+            displacement,
+            Err(SolveError::UnderDetermined { .. })
+        ));
+        let epoch = OdometryEpoch {
+            matches,
+            prior,
+            excluded: Vec::new(),
+            rotation: Err(SolveError::BadCovariance),
+            displacement,
+        };
+        let anchored = Anchored::new(&previous, &current, &epoch, &prior).unwrap();
+        assert_eq!(anchored.unobservable.len(), 1);
+        assert!((anchored.unobservable[0].x.abs() - 1.0).abs() < 1e-6);
+        let solution = anchored.solve(&[]).unwrap();
+        assert!((solution.x.y - truth.y).abs() < 1e-9);
+        assert!((solution.x.z - truth.z).abs() < 1e-9);
+        // Along the hallway the solution is the prior's, and that direction is not fused.
+        assert!((solution.x.x - 0.7).abs() < 1e-9);
+        let observability = Observability::from_unobservable(&anchored.unobservable);
+        assert_eq!(observability.rank(), 2);
+        assert!(observability
+            .observable_directions()
+            .all(|d| d.x.abs() < 1e-6));
+    }
+}

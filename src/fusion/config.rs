@@ -1,0 +1,160 @@
+//! Settings of the fusion (`[fusion]`) and the four tables it is built from, with validation.
+
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::filter::FilterConfig;
+use crate::integrity::IntegrityConfig;
+use crate::odometry::OdometryConfig;
+
+/// Keys of the `[fusion]` table. Every key has a default; unknown keys are refused.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionConfig {
+    /// Odometry epochs per second, Hz. Default 1.0, as the paper; at most the scan rate (a pair
+    /// of scans makes at most one epoch). Between epochs the scans are not processed.
+    pub epoch_rate_hz: f64,
+    /// `true` (default): planes the integrity monitor isolates are excluded and epochs it cannot
+    /// clear are not fused. `false`: integrity still tests and reports, but every solved epoch is
+    /// fused with all its matched planes (only for comparing with and without exclusion).
+    pub exclusion: bool,
+    /// Largest difference, s, between the mid-scan times of the two scanners' scans paired into
+    /// one epoch. Default 0.05 s; pairs further apart wait for the next scan.
+    pub max_scan_skew_s: f64,
+    /// Every how many propagated IMU samples `push_imu` returns an `Estimate` (1 = each).
+    pub estimate_decimation: u32,
+    /// A scanner whose newest scan is older than this, s, on the IMU's host time, marks the
+    /// estimates degraded. Default 1.0 s.
+    pub scan_stale_s: f64,
+    /// Factor on the odometer's rotation and displacement covariances before they are fused.
+    /// Consecutive epochs share planes, so their errors are correlated, which the filter's
+    /// independent updates do not model; the factor keeps the fused covariance honest.
+    pub measurement_covariance_scale: f64,
+}
+
+impl Default for FusionConfig {
+    fn default() -> Self {
+        Self {
+            epoch_rate_hz: 1.0,
+            exclusion: true,
+            max_scan_skew_s: 0.05,
+            estimate_decimation: 1,
+            scan_stale_s: 1.0,
+            measurement_covariance_scale: 1.0,
+        }
+    }
+}
+
+/// Everything a `Fusion` is built from: the `[fusion]`, `[odometry]`, `[integrity]` and
+/// `[filter]` tables.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionSettings {
+    pub fusion: FusionConfig,
+    pub odometry: OdometryConfig,
+    pub integrity: IntegrityConfig,
+    pub filter: FilterConfig,
+}
+
+/// Time the pose history must cover beyond one epoch interval: the scans arrive after their
+/// reference time and the solve uses the pose at the previous epoch.
+const HISTORY_MARGIN_S: f64 = 0.25;
+
+/// A setting or scanner the fusion cannot run with; Display is one line naming the fix.
+#[derive(Debug, Clone, PartialEq, Error)]
+pub enum FusionError {
+    #[error("fusion.{key} = {value} is invalid: set {expected}")]
+    Invalid {
+        key: &'static str,
+        value: f64,
+        expected: &'static str,
+    },
+    #[error("fusion.epoch_rate_hz = {rate} needs {needed:.2} s of pose history but filter.pose_history_s = {history}: raise filter.pose_history_s or the epoch rate")]
+    HistoryTooShort {
+        rate: f64,
+        history: f64,
+        needed: f64,
+    },
+    #[error("{0}")]
+    Odometry(#[from] crate::odometry::ConfigError),
+    #[error("{0}")]
+    Integrity(#[from] crate::integrity::ConfigError),
+    #[error("{0}")]
+    Filter(#[from] crate::filter::ConfigError),
+    #[error("scanner index {0} does not exist: the fusion takes scanners 0 and 1")]
+    NoSuchScanner(usize),
+}
+
+impl FusionConfig {
+    pub fn validate(&self) -> Result<(), FusionError> {
+        let positive = "a finite number above 0";
+        let checks: [(&'static str, f64, bool, &'static str); 5] = [
+            (
+                "measurement_covariance_scale",
+                self.measurement_covariance_scale,
+                self.measurement_covariance_scale >= 1.0,
+                "a finite number of 1 or more",
+            ),
+            (
+                "epoch_rate_hz",
+                self.epoch_rate_hz,
+                self.epoch_rate_hz > 0.0,
+                positive,
+            ),
+            (
+                "max_scan_skew_s",
+                self.max_scan_skew_s,
+                self.max_scan_skew_s >= 0.0,
+                "a finite number of 0 or more",
+            ),
+            (
+                "estimate_decimation",
+                f64::from(self.estimate_decimation),
+                self.estimate_decimation >= 1,
+                "1 or more",
+            ),
+            (
+                "scan_stale_s",
+                self.scan_stale_s,
+                self.scan_stale_s > 0.0,
+                positive,
+            ),
+        ];
+        match checks
+            .into_iter()
+            .find(|(_, value, ok, _)| !(*ok && value.is_finite()))
+        {
+            Some((key, value, _, expected)) => Err(FusionError::Invalid {
+                key,
+                value,
+                expected,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Seconds between epochs.
+    pub fn epoch_interval_s(&self) -> f64 {
+        1.0 / self.epoch_rate_hz
+    }
+}
+
+impl FusionSettings {
+    /// Checks every table and that the pose history spans an epoch interval.
+    pub fn validate(&self) -> Result<(), FusionError> {
+        self.fusion.validate()?;
+        self.odometry.validate()?;
+        self.integrity.validate()?;
+        self.filter.validate()?;
+        let needed =
+            self.fusion.epoch_interval_s() + self.fusion.max_scan_skew_s + HISTORY_MARGIN_S;
+        if needed > self.filter.pose_history_s {
+            return Err(FusionError::HistoryTooShort {
+                rate: self.fusion.epoch_rate_hz,
+                history: self.filter.pose_history_s,
+                needed,
+            });
+        }
+        Ok(())
+    }
+}

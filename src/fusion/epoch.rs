@@ -1,0 +1,314 @@
+//! One odometry epoch: deskew and extract the planes at the reference time, match and solve
+//! against the previous epoch under the filter's prior, test integrity, and fuse what passed
+//! against the clone of the previous epoch's pose; then clone the pose at this epoch.
+
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+
+use super::anchor::Anchored;
+use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
+use super::{Fusion, Reference};
+use crate::estimate::IntegrityStatus;
+use crate::estimation::Solution;
+use crate::filter::{
+    Eskf, FilterPhase, Observability, Pose, RelativePose as FilterRelativePose, RelativeRotation,
+    RelativeTranslation,
+};
+use crate::integrity::EpochReport;
+use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
+use crate::sensors::Scan;
+
+/// The solves integrity let through, with the matches they left out.
+struct Cleared {
+    rotation: Option<Solution>,
+    displacement: Option<Solution>,
+    /// Observable directions of the displacement (all but the anchored ones).
+    displacement_observability: Observability,
+    excluded: Vec<usize>,
+}
+
+impl Fusion {
+    pub(super) fn run_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
+        let mut current = std::mem::take(&mut self.current);
+        self.extract(scans, t_ref, &mut current);
+        let mut record = planes_record(&current);
+        let reference = self.reference.take();
+        if let Some(reference) = reference.as_ref().filter(|r| r.cloned) {
+            record.t_previous = Some(reference.planes.t_ref);
+            self.solve_and_fuse(&reference.planes, &current, &mut record);
+        }
+        let cloned = self.filter.clone_pose().is_ok();
+        self.reference = Some(Reference {
+            planes: current,
+            cloned,
+        });
+        self.current = reference.map(|r| r.planes).unwrap_or_default();
+        record
+    }
+
+    /// Planes of the two scans in the body frame at `t_ref`, deskewed with the filter's poses
+    /// (no motion assumed before the filter is aligned).
+    fn extract(&mut self, scans: &[Scan; 2], t_ref: f64, out: &mut EpochPlanes) {
+        let motion = MotionModel::new(&self.filter);
+        let reference = motion.as_ref().map(|m| m.pose(t_ref));
+        let pose_at = |t: f64| -> Isometry3<f64> {
+            match (&motion, &reference) {
+                (Some(motion), Some(reference)) => relative(reference, &motion.pose(t)),
+                _ => Isometry3::identity(),
+            }
+        };
+        self.odometer
+            .extract_into([&scans[0], &scans[1]], t_ref, &pose_at, out);
+    }
+
+    fn solve_and_fuse(
+        &mut self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        record: &mut EpochRecord,
+    ) {
+        let Some(prior) = self.filter.relative_pose(previous.t_ref, current.t_ref) else {
+            record.outcome = EpochOutcome::Reference;
+            return;
+        };
+        // The filter's rotation covariance is of a right perturbation (body j); the odometer
+        // wants a left one (body i).
+        let c = prior.rotation.to_rotation_matrix().into_inner();
+        let prior = RelativePose {
+            rotation: prior.rotation,
+            translation: prior.translation,
+            rotation_covariance: c * prior.rotation_covariance * c.transpose(),
+            translation_covariance: prior.translation_covariance,
+        };
+        let epoch = self.odometer.solve(previous, current, &prior);
+        let anchored = Anchored::new(previous, current, &epoch, &prior);
+        let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
+        let cleared = self.clear(&epoch, &report, anchored.as_ref());
+        record.matched = epoch.matches.len();
+        record.excluded_planes = cleared
+            .excluded
+            .iter()
+            .filter_map(|&k| epoch.matches.get(k))
+            .map(|m| current.planes[m.current].id)
+            .collect();
+        record.used = record.matched - record.excluded_planes.len();
+        record.unobservable_displacement = anchored
+            .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
+            .unwrap_or_default();
+        self.integrity = Some(report.status.clone());
+        record.status = Some(report.status.clone());
+        record.integrity = Some(report);
+        let measurement = measurement(
+            previous.t_ref,
+            current.t_ref,
+            &cleared,
+            self.config.measurement_covariance_scale,
+        );
+        record.rotation = measurement
+            .rotation
+            .map(|r| WithCovariance::new(&r.rotation_vector, &r.covariance));
+        record.displacement = measurement
+            .translation
+            .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
+        if measurement.rotation.is_none() && measurement.translation.is_none() {
+            record.outcome = EpochOutcome::NotFused;
+            return;
+        }
+        record.outcome = match self.filter.update_relative_pose(&measurement) {
+            Ok(update) => {
+                record.update = Some(UpdateSummary::from(&update));
+                if update.accepted {
+                    EpochOutcome::Fused
+                } else {
+                    EpochOutcome::RejectedByGate
+                }
+            }
+            Err(error) => EpochOutcome::UpdateFailed {
+                reason: error.to_string(),
+            },
+        };
+    }
+
+    fn check_integrity(
+        &self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        epoch: &OdometryEpoch,
+        anchored: Option<&Anchored>,
+    ) -> EpochReport {
+        let odometer = &self.odometer;
+        let mut rotation = |excluded: &[usize]| {
+            odometer
+                .resolve(previous, current, epoch, excluded)
+                .rotation
+        };
+        let mut displacement = |excluded: &[usize]| match anchored {
+            Some(anchored) => anchored.solve(excluded),
+            None => {
+                odometer
+                    .resolve(previous, current, epoch, excluded)
+                    .displacement
+            }
+        };
+        let first = displacement(&[]);
+        self.monitor.check_epoch(
+            epoch.rotation.clone(),
+            first,
+            &mut rotation,
+            &mut displacement,
+        )
+    }
+
+    /// With exclusion: the solves integrity cleared (both, or the testable one of an
+    /// under-determined epoch). Without: every solve that succeeded, with all planes.
+    fn clear(
+        &self,
+        epoch: &OdometryEpoch,
+        report: &EpochReport,
+        anchored: Option<&Anchored>,
+    ) -> Cleared {
+        let displacement_observability = anchored.map_or_else(Observability::full, |a| {
+            Observability::from_unobservable(&a.unobservable)
+        });
+        if !self.config.exclusion {
+            return Cleared {
+                rotation: epoch.rotation.as_ref().ok().cloned(),
+                displacement: match anchored {
+                    Some(anchored) => anchored.solve(&[]).ok(),
+                    None => epoch.displacement.as_ref().ok().cloned(),
+                },
+                displacement_observability,
+                excluded: Vec::new(),
+            };
+        }
+        let part = |solve: &crate::integrity::SolveReport| match (&report.status, &solve.status) {
+            (IntegrityStatus::DetectedNotIsolable, _) => None,
+            (_, status) if status.usable() => solve.solution.clone(),
+            _ => None,
+        };
+        Cleared {
+            rotation: part(&report.rotation),
+            displacement: part(&report.displacement),
+            displacement_observability,
+            excluded: report.excluded.clone(),
+        }
+    }
+}
+
+/// The filter measurement from the cleared solves.
+fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelativePose {
+    let rotation = cleared.rotation.as_ref().map(|solution| {
+        // The odometer's covariance is of a left perturbation in body-i axes; the filter's
+        // residual is a right one, in body-j axes: Exp(a) C = C Exp(C^T a).
+        let c = UnitQuaternion::from_scaled_axis(solution.x)
+            .to_rotation_matrix()
+            .into_inner();
+        RelativeRotation {
+            rotation_vector: solution.x,
+            covariance: symmetric(c.transpose() * solution.covariance * c) * scale,
+            observability: Observability::full(),
+        }
+    });
+    let translation = cleared
+        .displacement
+        .as_ref()
+        .map(|solution| RelativeTranslation {
+            displacement: solution.x,
+            covariance: symmetric(solution.covariance) * scale,
+            observability: cleared.displacement_observability,
+        });
+    FilterRelativePose {
+        t_ref,
+        t,
+        rotation,
+        translation,
+    }
+}
+
+fn symmetric(m: Matrix3<f64>) -> Matrix3<f64> {
+    (m + m.transpose()) * 0.5
+}
+
+fn planes_record(planes: &EpochPlanes) -> EpochRecord {
+    let on_scanner = |k: usize| {
+        planes
+            .planes
+            .iter()
+            .filter(|plane| plane.lines.iter().any(|line| line.scanner == k))
+            .count()
+    };
+    EpochRecord {
+        t: planes.t_ref,
+        t_previous: None,
+        outcome: EpochOutcome::Reference,
+        readings: planes.readings,
+        dropped: planes.dropped,
+        lines: planes.lines,
+        planes_per_scanner: [on_scanner(0), on_scanner(1)],
+        planes: planes.planes.len(),
+        matched: 0,
+        used: 0,
+        excluded_planes: Vec::new(),
+        unobservable_displacement: Vec::new(),
+        status: None,
+        integrity: None,
+        rotation: None,
+        displacement: None,
+        update: None,
+    }
+}
+
+/// The filter's poses for deskewing: its history, extrapolated with the current velocity and
+/// rate for beams after the newest IMU sample.
+struct MotionModel<'a> {
+    filter: &'a Eskf,
+    newest: Pose,
+    velocity: Vector3<f64>,
+    body_rate: Vector3<f64>,
+}
+
+impl<'a> MotionModel<'a> {
+    fn new(filter: &'a Eskf) -> Option<Self> {
+        if filter.phase() == FilterPhase::Aligning {
+            return None;
+        }
+        let t = filter.time()?;
+        let state = filter.state();
+        Some(Self {
+            filter,
+            newest: Pose {
+                t,
+                p: state.p,
+                q: state.q,
+            },
+            velocity: state.v,
+            body_rate: filter.estimate().angular_rate,
+        })
+    }
+
+    fn pose(&self, t: f64) -> Pose {
+        if let Some(pose) = self.filter.pose_at(t) {
+            return pose;
+        }
+        // Before the history (older than pose_history_s): the oldest would do no better than
+        // the newest, and the epoch will restart the chain anyway.
+        let dt = if t > self.newest.t {
+            t - self.newest.t
+        } else {
+            0.0
+        };
+        Pose {
+            t,
+            p: self.newest.p + self.velocity * dt,
+            q: self.newest.q * UnitQuaternion::from_scaled_axis(self.body_rate * dt),
+        }
+    }
+}
+
+/// Body pose at `at` relative to the body at `reference`: `p_ref = T * p_at`.
+fn relative(reference: &Pose, at: &Pose) -> Isometry3<f64> {
+    let inverse = reference.q.inverse();
+    Isometry3::from_parts(
+        Translation3::from(inverse * (at.p - reference.p)),
+        inverse * at.q,
+    )
+}

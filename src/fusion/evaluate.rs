@@ -1,0 +1,292 @@
+//! Accuracy and consistency of the fusion on a simulated run: drives `Simulator::events()`
+//! through `Fusion` and compares the estimates with the trajectory's truth after the
+//! stationary start.
+
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::Serialize;
+
+use super::record::{EpochOutcome, EpochRecord};
+use super::{Fusion, FusionError, FusionSettings};
+use crate::estimate::{Estimate, IntegrityStatus};
+use crate::filter::chi_square_quantile;
+use crate::odometry::ScannerSetup;
+use crate::sensors::TruthSample;
+use crate::sim::{Scenario, ScenarioError, SimEvent, Simulator};
+
+/// Estimates are compared with truth every this many IMU samples (10 Hz at 400 Hz).
+const COMPARE_EVERY: u64 = 40;
+
+/// Epochs by how they ended.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize)]
+pub struct EpochCounts {
+    pub total: u64,
+    /// Reference only (first epoch, before alignment, chain restarted).
+    pub reference: u64,
+    /// Integrity `Ok` and fused.
+    pub ok: u64,
+    /// Planes excluded, the rest fused.
+    pub excluded: u64,
+    pub not_isolable: u64,
+    pub under_determined: u64,
+    /// Refused by the filter's innovation gate.
+    pub rejected_by_gate: u64,
+    pub update_failed: u64,
+    /// Fused (accepted by the gate), whatever the integrity verdict.
+    pub fused: u64,
+}
+
+impl EpochCounts {
+    fn add(&mut self, record: &EpochRecord) {
+        self.total += 1;
+        match &record.status {
+            None => self.reference += 1,
+            Some(IntegrityStatus::Ok) => self.ok += 1,
+            Some(IntegrityStatus::Excluded { .. }) => self.excluded += 1,
+            Some(IntegrityStatus::DetectedNotIsolable) => self.not_isolable += 1,
+            Some(IntegrityStatus::UnderDetermined) => self.under_determined += 1,
+        }
+        match record.outcome {
+            EpochOutcome::Fused => self.fused += 1,
+            EpochOutcome::RejectedByGate => self.rejected_by_gate += 1,
+            EpochOutcome::UpdateFailed { .. } => self.update_failed += 1,
+            _ => {}
+        }
+    }
+}
+
+/// Figures of one simulated run, after the stationary start.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct AccuracyReport {
+    pub scenario: String,
+    /// Start of the comparison (end of the filter's stationary start), s.
+    pub from_s: f64,
+    pub to_s: f64,
+    /// Standard deviation of the NED velocity error per axis, m/s.
+    pub velocity_error_std_ned: [f64; 3],
+    /// Root mean square of the NED velocity error per axis, m/s.
+    pub velocity_error_rms_ned: [f64; 3],
+    /// Standard deviation of the roll, pitch and yaw (Euler angle) errors, mrad.
+    pub attitude_error_std_mrad: [f64; 3],
+    pub attitude_error_rms_mrad: [f64; 3],
+    /// Horizontal position error at the end, m.
+    pub horizontal_error_end_m: f64,
+    /// Position error at the end, NED, m.
+    pub position_error_end_m: [f64; 3],
+    /// Path length of the truth over the compared span, m.
+    pub distance_travelled_m: f64,
+    /// Final horizontal error in % of the distance travelled (infinite when hovering).
+    pub drift_percent: f64,
+    /// Average 9-dof NEES (position, velocity, attitude), sampled once a second.
+    pub nees_mean: f64,
+    /// 95 % interval of that average for a consistent filter, as if the samples were
+    /// independent (they are not quite: a narrow yardstick).
+    pub nees_interval: [f64; 2],
+    pub nees_samples: usize,
+    /// Average NIS per degree of freedom of the relative-pose updates (1 when consistent).
+    pub nis_per_dof_mean: f64,
+    pub epochs: EpochCounts,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum EvaluationError {
+    #[error("{0}")]
+    Scenario(#[from] ScenarioError),
+    #[error("{0}")]
+    Fusion(#[from] FusionError),
+    #[error("scenario {0} has no IMU: the fusion needs one")]
+    NoImu(String),
+    #[error("scenario {0} needs two scanners, it has {1}")]
+    ScannerCount(String, usize),
+}
+
+/// Runs the scenario through the fusion with `settings` (whose IMU mount is taken from the
+/// scenario) and measures the accuracy.
+pub fn run_scenario(
+    scenario: &Scenario,
+    settings: &FusionSettings,
+) -> Result<AccuracyReport, EvaluationError> {
+    run_scenario_with(scenario, settings, &mut |_, _| {})
+}
+
+/// As `run_scenario`, handing every epoch record to `on_epoch` with the estimate just after it.
+pub fn run_scenario_with(
+    scenario: &Scenario,
+    settings: &FusionSettings,
+    on_epoch: &mut dyn FnMut(&EpochRecord, &Estimate),
+) -> Result<AccuracyReport, EvaluationError> {
+    let mut simulator = Simulator::new(scenario)?;
+    let imu = simulator
+        .imu()
+        .ok_or_else(|| EvaluationError::NoImu(scenario.name.clone()))?;
+    let mut settings = settings.clone();
+    settings.filter.imu_mount_rpy_deg = imu.mount_rpy_deg;
+    let setups = scanner_setups(&simulator).ok_or_else(|| {
+        EvaluationError::ScannerCount(scenario.name.clone(), simulator.scanners().len())
+    })?;
+    let from_s = settings.filter.stationary_start_s;
+    let mut fusion = Fusion::new(settings, setups)?;
+    let trajectory = scenario.trajectory.clone();
+    let truth = |t: f64| {
+        let k = trajectory.kinematics(t);
+        TruthSample {
+            t,
+            p: k.p,
+            q: k.q,
+            v: k.v,
+        }
+    };
+    let mut errors = Errors::default();
+    let mut epochs = EpochCounts::default();
+    let mut nis = (0.0, 0usize);
+    let mut samples = 0u64;
+    let mut next_nees = from_s;
+    for event in simulator.events() {
+        match event {
+            SimEvent::Imu(sample) => {
+                fusion.push_imu(sample);
+                samples += 1;
+                let Some(t) = fusion.filter().time() else {
+                    continue;
+                };
+                if t < from_s || !samples.is_multiple_of(COMPARE_EVERY) {
+                    continue;
+                }
+                let truth = truth(t);
+                let estimate = fusion.estimate();
+                errors.add(
+                    &estimate.velocity,
+                    &estimate.attitude,
+                    &estimate.position,
+                    &truth,
+                );
+                if t >= next_nees {
+                    next_nees += 1.0;
+                    if let Some(nees) = fusion.filter().nees(&truth) {
+                        errors.nees.push(nees.value);
+                    }
+                }
+            }
+            SimEvent::Scan { scan, .. } => {
+                if let Some(record) = fusion.push_scan(scan) {
+                    epochs.add(&record);
+                    if let Some(update) = record.update.filter(|u| u.dof > 0) {
+                        nis.0 += update.nis / update.dof as f64;
+                        nis.1 += 1;
+                    }
+                    on_epoch(&record, &fusion.estimate());
+                }
+            }
+            SimEvent::Truth(_) => {}
+        }
+    }
+    Ok(errors.report(
+        scenario.name.clone(),
+        from_s,
+        epochs,
+        nis.0 / nis.1.max(1) as f64,
+    ))
+}
+
+/// The simulator's scanners as the fusion needs them.
+pub fn scanner_setups(simulator: &Simulator) -> Option<[ScannerSetup; 2]> {
+    let scanners = simulator.scanners();
+    if scanners.len() != 2 {
+        return None;
+    }
+    Some([0, 1].map(|k| ScannerSetup {
+        geometry: *scanners[k].geometry(),
+        mount: *scanners[k].mount(),
+        range_sigma_m: Some(scanners[k].range_sigma_m()),
+    }))
+}
+
+#[derive(Debug, Default)]
+struct Errors {
+    velocity: Vec<Vector3<f64>>,
+    attitude: Vec<Vector3<f64>>,
+    last_position: Option<(f64, Vector3<f64>)>,
+    distance: f64,
+    last_truth: Option<Vector3<f64>>,
+    nees: Vec<f64>,
+}
+
+impl Errors {
+    fn add(
+        &mut self,
+        velocity: &Vector3<f64>,
+        attitude: &UnitQuaternion<f64>,
+        position: &Vector3<f64>,
+        truth: &TruthSample,
+    ) {
+        self.velocity.push(velocity - truth.v);
+        let (r, p, y) = attitude.euler_angles();
+        let (tr, tp, ty) = truth.q.euler_angles();
+        self.attitude
+            .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+        self.last_position = Some((truth.t, position - truth.p));
+        if let Some(last) = self.last_truth {
+            self.distance += (truth.p - last).norm();
+        }
+        self.last_truth = Some(truth.p);
+    }
+
+    fn report(
+        self,
+        scenario: String,
+        from_s: f64,
+        epochs: EpochCounts,
+        nis: f64,
+    ) -> AccuracyReport {
+        let (to_s, end) = self.last_position.unwrap_or((from_s, Vector3::zeros()));
+        let horizontal = end.xy().norm();
+        let n = self.nees.len();
+        let nees_mean = self.nees.iter().sum::<f64>() / n.max(1) as f64;
+        let dof = 9 * n.max(1);
+        let interval = [0.025, 0.975].map(|p| chi_square_quantile(p, dof) / n.max(1) as f64);
+        AccuracyReport {
+            scenario,
+            from_s,
+            to_s,
+            velocity_error_std_ned: std_dev(&self.velocity),
+            velocity_error_rms_ned: rms(&self.velocity),
+            attitude_error_std_mrad: std_dev(&self.attitude),
+            attitude_error_rms_mrad: rms(&self.attitude),
+            horizontal_error_end_m: horizontal,
+            position_error_end_m: end.into(),
+            distance_travelled_m: self.distance,
+            drift_percent: 100.0 * horizontal / self.distance,
+            nees_mean,
+            nees_interval: interval,
+            nees_samples: n,
+            nis_per_dof_mean: nis,
+            epochs,
+        }
+    }
+}
+
+fn wrap(angle: f64) -> f64 {
+    let tau = std::f64::consts::TAU;
+    angle - tau * (angle / tau).round()
+}
+
+fn mean(values: &[Vector3<f64>]) -> Vector3<f64> {
+    values.iter().sum::<Vector3<f64>>() / values.len().max(1) as f64
+}
+
+fn std_dev(values: &[Vector3<f64>]) -> [f64; 3] {
+    let mean = mean(values);
+    let n = values.len().max(2) as f64 - 1.0;
+    let sum = values
+        .iter()
+        .map(|v| (v - mean).component_mul(&(v - mean)))
+        .sum::<Vector3<f64>>();
+    (sum / n).map(f64::sqrt).into()
+}
+
+fn rms(values: &[Vector3<f64>]) -> [f64; 3] {
+    let sum = values
+        .iter()
+        .map(|v| v.component_mul(v))
+        .sum::<Vector3<f64>>();
+    (sum / values.len().max(1) as f64).map(f64::sqrt).into()
+}

@@ -1,0 +1,105 @@
+//! What one odometry epoch did, for epochs.jsonl: the planes, the matches, the integrity
+//! evidence, the relative pose that was fused and the filter's verdict on it.
+
+use nalgebra::{Matrix3, Vector3};
+use serde::Serialize;
+
+use crate::estimate::IntegrityStatus;
+use crate::filter::UpdateReport;
+use crate::integrity::EpochReport;
+use crate::odometry::deskew::DroppedReadings;
+
+/// How an epoch ended.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "outcome", rename_all = "snake_case")]
+pub enum EpochOutcome {
+    /// The epoch only became the reference of the next one: it is the first, the filter was not
+    /// aligned yet, or the previous epoch fell out of the pose history (IMU gap, stale scanner).
+    Reference,
+    /// Integrity cleared at least one of rotation and displacement and the filter fused it.
+    Fused,
+    /// The filter's innovation gate refused the relative pose.
+    RejectedByGate,
+    /// Nothing was fit to fuse: see `integrity` (fault not isolable, too few planes).
+    NotFused,
+    /// The filter could not take the measurement (e.g. the scans arrived too late).
+    UpdateFailed { reason: String },
+}
+
+/// A three-vector with its covariance, as fused.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct WithCovariance {
+    pub value: [f64; 3],
+    pub covariance: [[f64; 3]; 3],
+}
+
+impl WithCovariance {
+    pub fn new(value: &Vector3<f64>, covariance: &Matrix3<f64>) -> Self {
+        Self {
+            value: (*value).into(),
+            covariance: (*covariance).into(),
+        }
+    }
+}
+
+/// The filter's verdict on an epoch's relative pose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct UpdateSummary {
+    /// Normalised innovation squared over the observable rows.
+    pub nis: f64,
+    /// Observable rows fused.
+    pub dof: usize,
+    /// Gate threshold on the NIS.
+    pub threshold: f64,
+    pub accepted: bool,
+}
+
+impl From<&UpdateReport> for UpdateSummary {
+    fn from(report: &UpdateReport) -> Self {
+        Self {
+            nis: report.nis,
+            dof: report.dof,
+            threshold: report.threshold,
+            accepted: report.accepted,
+        }
+    }
+}
+
+/// One line of epochs.jsonl.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EpochRecord {
+    /// Reference time of this epoch (mid-scan time of scanner 0), host seconds.
+    pub t: f64,
+    /// Reference time of the epoch it was matched against.
+    pub t_previous: Option<f64>,
+    #[serde(flatten)]
+    pub outcome: EpochOutcome,
+    /// Valid readings per scanner.
+    pub readings: [usize; 2],
+    /// Readings dropped per scanner, by reason.
+    pub dropped: [DroppedReadings; 2],
+    /// Lines extracted per scanner.
+    pub lines: [usize; 2],
+    /// Planes built with a line of each scanner (a plane may count for both).
+    pub planes_per_scanner: [usize; 2],
+    pub planes: usize,
+    /// Plane pairs matched with the previous epoch.
+    pub matched: usize,
+    /// Matches in the fused solves (after exclusion).
+    pub used: usize,
+    /// Ids (in this epoch's planes) of the planes integrity excluded.
+    pub excluded_planes: Vec<usize>,
+    /// Directions (body i) no matched plane constrained: anchored to the filter's prior for
+    /// the solve and left out of the fused displacement.
+    pub unobservable_displacement: Vec<[f64; 3]>,
+    /// Verdict of the integrity monitor, when the epoch was solved.
+    pub status: Option<IntegrityStatus>,
+    /// Test statistics, thresholds, minimum detectable biases and protection levels.
+    pub integrity: Option<EpochReport>,
+    /// Rotation vector of `C_j^i` (body j -> body i), rad, with the covariance given to the
+    /// filter (right perturbation, body-j axes).
+    pub rotation: Option<WithCovariance>,
+    /// Body j's origin in body-i axes, m, with its covariance.
+    pub displacement: Option<WithCovariance>,
+    pub update: Option<UpdateSummary>,
+}

@@ -1,0 +1,243 @@
+use super::*;
+use crate::fusion::evaluate::scanner_setups;
+use crate::sensors::{Mount, ScannerGeometry};
+use crate::sim::{Scenario, SimEvent, Simulator};
+
+fn setups() -> [ScannerSetup; 2] {
+    [0.0, -30.0].map(|pitch| ScannerSetup {
+        geometry: ScannerGeometry::UTM_30LX,
+        mount: Mount::from_rpy_deg([0.0, pitch, 0.0], [0.0; 3]),
+        range_sigma_m: Some(0.01),
+    })
+}
+
+fn blank_scan(sensor: usize, t0: f64) -> Scan {
+    Scan {
+        sensor,
+        t0,
+        first_step: 0,
+        cluster: 1,
+        ranges_m: vec![f64::NAN; 1081],
+    }
+}
+
+fn fusion_at(rate_hz: f64) -> Fusion {
+    let mut settings = FusionSettings::default();
+    settings.fusion.epoch_rate_hz = rate_hz;
+    Fusion::new(settings, setups()).unwrap()
+}
+
+/// The first seconds of hallway-hover, stationary: enough to align and run a few epochs.
+fn short_hover(seconds: f64) -> (Scenario, FusionSettings) {
+    let mut scenario = Scenario::builtin("hallway-hover").unwrap();
+    scenario.duration_s = seconds;
+    let mut settings = FusionSettings::default();
+    settings.odometry.accept_parallel_lines = true;
+    (scenario, settings)
+}
+
+#[test]
+fn defaults_validate_and_bad_keys_name_themselves() {
+    assert!(FusionSettings::default().validate().is_ok());
+    let mut settings = FusionSettings::default();
+    settings.fusion.epoch_rate_hz = 0.0;
+    let error = Fusion::new(settings, setups()).err().unwrap().to_string();
+    assert!(error.contains("fusion.epoch_rate_hz"), "{error}");
+    let mut settings = FusionSettings::default();
+    settings.fusion.epoch_rate_hz = 0.25;
+    let error = settings.validate().unwrap_err().to_string();
+    assert!(error.contains("filter.pose_history_s"), "{error}");
+    assert!(!error.contains('\n'));
+}
+
+#[test]
+fn settings_parse_from_toml_and_refuse_unknown_keys() {
+    let settings: FusionSettings =
+        toml::from_str("[fusion]\nepoch_rate_hz = 10.0\nexclusion = false\n").unwrap();
+    assert_eq!(settings.fusion.epoch_rate_hz, 10.0);
+    assert!(!settings.fusion.exclusion);
+    assert!(toml::from_str::<FusionSettings>("[fusion]\nepoch_rate = 1.0\n").is_err());
+}
+
+#[test]
+fn scans_before_any_imu_make_a_reference_epoch_without_panicking() {
+    let mut fusion = fusion_at(1.0);
+    assert!(fusion.push_scan(blank_scan(0, 0.0)).is_none());
+    let record = fusion.push_scan(blank_scan(1, 0.01)).unwrap();
+    assert_eq!(record.outcome, EpochOutcome::Reference);
+    assert_eq!(record.planes, 0);
+    assert_eq!(record.dropped[0].not_a_number, 1081);
+    assert!(fusion.estimate().degraded);
+}
+
+#[test]
+fn pairs_need_both_scanners_within_the_skew_and_follow_the_epoch_rate() {
+    let mut fusion = fusion_at(1.0);
+    assert!(fusion.push_scan(blank_scan(0, 0.0)).is_none());
+    // Too far from scanner 0's scan: dropped, and the older scan with it.
+    assert!(fusion.push_scan(blank_scan(1, 0.2)).is_none());
+    assert_eq!(fusion.counters().skewed_pairs, 1);
+    assert!(fusion.push_scan(blank_scan(0, 0.21)).is_some());
+    // 4 Hz pairs at 1 Hz epochs: the next three pairs are skipped.
+    let epochs: Vec<bool> = (1..=8)
+        .map(|k| {
+            let t = 0.21 + 0.25 * f64::from(k);
+            fusion.push_scan(blank_scan(1, t + 0.012));
+            fusion.push_scan(blank_scan(0, t)).is_some()
+        })
+        .collect();
+    assert_eq!(
+        epochs,
+        [false, false, false, true, false, false, false, true]
+    );
+    assert!(fusion.push_scan(blank_scan(2, 3.0)).is_none());
+    assert_eq!(fusion.counters().unknown_scanner, 1);
+}
+
+#[test]
+fn an_epoch_rate_equal_to_the_scan_rate_takes_every_pair() {
+    let mut fusion = fusion_at(4.0);
+    let taken = (0..6)
+        .filter(|&k| {
+            let t = 0.25 * f64::from(k);
+            fusion.push_scan(blank_scan(0, t));
+            fusion.push_scan(blank_scan(1, t + 0.012)).is_some()
+        })
+        .count();
+    assert_eq!(taken, 6);
+}
+
+#[test]
+fn set_scanner_checks_the_index() {
+    let mut fusion = fusion_at(1.0);
+    assert!(fusion.set_scanner(1, setups()[0]).is_ok());
+    let error = fusion.set_scanner(2, setups()[0]).unwrap_err();
+    assert_eq!(error, FusionError::NoSuchScanner(2));
+}
+
+/// Drives a short simulated run; returns the estimates, the records and the fusion.
+fn drive(
+    scenario: &Scenario,
+    settings: &FusionSettings,
+    mut before_scan: impl FnMut(&mut Fusion, &Scan),
+) -> (Vec<Estimate>, Vec<EpochRecord>, Fusion) {
+    let mut simulator = Simulator::new(scenario).unwrap();
+    let mut fusion = Fusion::new(settings.clone(), scanner_setups(&simulator).unwrap()).unwrap();
+    let (mut estimates, mut records) = (Vec::new(), Vec::new());
+    for event in simulator.events() {
+        match event {
+            SimEvent::Imu(sample) => estimates.extend(fusion.push_imu(sample)),
+            SimEvent::Scan { scan, .. } => {
+                before_scan(&mut fusion, &scan);
+                records.extend(fusion.push_scan(scan));
+            }
+            SimEvent::Truth(_) => {}
+        }
+    }
+    (estimates, records, fusion)
+}
+
+#[test]
+fn the_same_inputs_give_identical_estimates_bit_for_bit() {
+    let (scenario, mut settings) = short_hover(4.0);
+    settings.fusion.estimate_decimation = 8;
+    let (first, first_records, _) = drive(&scenario, &settings, |_, _| {});
+    let (second, second_records, _) = drive(&scenario, &settings, |_, _| {});
+    assert!(first.len() > 100);
+    assert!(first_records
+        .iter()
+        .any(|r| r.outcome == EpochOutcome::Fused));
+    let bits = |estimates: &[Estimate]| -> Vec<u64> {
+        estimates
+            .iter()
+            .flat_map(|e| {
+                e.position
+                    .iter()
+                    .chain(e.velocity.iter())
+                    .chain(e.attitude.coords.iter())
+                    .chain(e.position_covariance.iter())
+                    .map(|x| x.to_bits())
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    assert_eq!(bits(&first), bits(&second));
+    assert_eq!(first_records, second_records);
+}
+
+#[test]
+fn a_stale_scanner_degrades_the_estimates_until_it_recovers() {
+    let (scenario, settings) = short_hover(3.0);
+    let (_, records, mut fusion) = drive(&scenario, &settings, |_, _| {});
+    assert!(records.iter().any(|r| r.status.is_some()));
+    assert!(!fusion.estimate().degraded);
+    fusion.mark_stale(Sensor::Scanner(1), true);
+    assert!(fusion.estimate().degraded);
+    fusion.mark_stale(Sensor::Scanner(1), false);
+    fusion.mark_stale(Sensor::Imu, true);
+    assert!(fusion.estimate().degraded);
+    fusion.mark_stale(Sensor::Imu, false);
+    assert!(!fusion.estimate().degraded);
+}
+
+#[test]
+fn a_silent_scanner_degrades_the_estimates() {
+    let (scenario, mut settings) = short_hover(4.0);
+    settings.fusion.scan_stale_s = 0.5;
+    let mut simulator = Simulator::new(&scenario).unwrap();
+    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut estimates = Vec::new();
+    for event in simulator.events() {
+        match event {
+            SimEvent::Imu(sample) => estimates.extend(fusion.push_imu(sample)),
+            // Scanner 1 goes quiet after 2 s.
+            SimEvent::Scan { scan, .. } if scan.sensor == 0 || scan.t0 < 2.0 => {
+                fusion.push_scan(scan);
+            }
+            _ => {}
+        }
+    }
+    let degraded = |from: f64, to: f64| {
+        estimates
+            .iter()
+            .filter(|e| e.t > from && e.t < to)
+            .map(|e| e.degraded)
+            .collect::<Vec<_>>()
+    };
+    assert!(degraded(1.5, 2.0).iter().all(|&d| !d));
+    let late = degraded(2.7, 4.0);
+    assert!(!late.is_empty() && late.iter().all(|&d| d));
+}
+
+#[test]
+fn too_few_planes_fuse_nothing_and_say_why() {
+    let (scenario, settings) = short_hover(4.0);
+    // Blank out most of both scans: at most the walls beside the scanner remain.
+    let mut simulator = Simulator::new(&scenario).unwrap();
+    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut records = Vec::new();
+    for event in simulator.events() {
+        match event {
+            SimEvent::Imu(sample) => {
+                fusion.push_imu(sample);
+            }
+            SimEvent::Scan { mut scan, .. } => {
+                for range in scan.ranges_m.iter_mut().skip(200) {
+                    *range = f64::NAN;
+                }
+                records.extend(fusion.push_scan(scan));
+            }
+            SimEvent::Truth(_) => {}
+        }
+    }
+    let solved: Vec<_> = records.iter().filter(|r| r.status.is_some()).collect();
+    assert!(!solved.is_empty());
+    for record in solved {
+        assert_eq!(record.status, Some(IntegrityStatus::UnderDetermined));
+        assert!(matches!(
+            record.outcome,
+            EpochOutcome::NotFused | EpochOutcome::Fused
+        ));
+        assert!(record.displacement.is_none() || record.rotation.is_none());
+    }
+}
