@@ -31,3 +31,13 @@ fn print_integrity_check() {
         .unwrap();
     println!("{report}");
 }
+
+#[test]
+#[ignore]
+fn print_paper_figures() {
+    let runs = std::env::var("RUNS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(1000);
+    println!("{}", ladar_odometer::study::paper_figures(runs, 1).unwrap());
+}

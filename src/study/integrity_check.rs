@@ -200,7 +200,7 @@ pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport
 }
 
 /// Labels of the planes matched in at least half of the pairs, most often seen first.
-fn studied_planes(outcomes: &[PairOutcome], runs: usize) -> Vec<PlaneLabel> {
+pub(super) fn studied_planes(outcomes: &[PairOutcome], runs: usize) -> Vec<PlaneLabel> {
     let mut counts: Vec<(PlaneLabel, usize)> = Vec::new();
     for outcome in outcomes {
         for k in 0..outcome.epoch.matches.len() {
@@ -219,7 +219,7 @@ fn studied_planes(outcomes: &[PairOutcome], runs: usize) -> Vec<PlaneLabel> {
         .collect()
 }
 
-fn canonical(label: PlaneLabel) -> PlaneLabel {
+pub(super) fn canonical(label: PlaneLabel) -> PlaneLabel {
     let [a, b] = label;
     [a.min(b), a.max(b)]
 }
@@ -279,7 +279,7 @@ impl RowSums {
 
 /// Per-plane figures over the fault-free pairs in which the plane was matched and both solves
 /// passed untouched.
-fn plane_figures(
+pub(super) fn plane_figures(
     rig: &Rig,
     outcomes: &[PairOutcome],
     label: &PlaneLabel,

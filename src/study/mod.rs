@@ -6,6 +6,7 @@
 mod harness;
 mod integrity_check;
 mod pairs;
+mod paper;
 mod sigma;
 
 pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
@@ -14,6 +15,9 @@ pub use integrity_check::{
     PlaneFigures, RowFigures, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
 };
 pub use pairs::{check_pair, run_pair, PairOutcome};
+pub use paper::{
+    paper_figures, six_plane_scenario, PaperFigures, ParityThresholds, Rate, PAPER_GAMMA,
+};
 pub use sigma::{paper_sigma_table, SigmaRow, SigmaTable, GROSS_ERROR_SIGMAS, PAPER_TABLE_1};
 
 use crate::odometry::OdometryConfig;
