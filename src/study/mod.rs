@@ -16,7 +16,8 @@ pub use integrity_check::{
 };
 pub use pairs::{check_pair, run_pair, PairOutcome};
 pub use paper::{
-    paper_figures, six_plane_scenario, PaperFigures, ParityThresholds, Rate, PAPER_GAMMA,
+    paper_figures, six_plane_scenario, ExclusionRate, PaperFigures, ParityThresholds, Rate,
+    PAPER_GAMMA,
 };
 pub use sigma::{paper_sigma_table, SigmaRow, SigmaTable, GROSS_ERROR_SIGMAS, PAPER_TABLE_1};
 
