@@ -150,3 +150,12 @@ fn print_integrity_check() {
 fn print_paper_figures() {
     println!("{}", paper_figures(runs_from_env(), 1).unwrap());
 }
+
+#[test]
+#[ignore]
+fn print_door_figures() {
+    println!(
+        "{}",
+        ladar_odometer::study::door_figures(runs_from_env(), 1).unwrap()
+    );
+}

@@ -3,12 +3,14 @@
 //! (sec. 4.1), the office door (sec. 4.2), and the `integrity-check` entry point for any
 //! scenario. Everything is seeded and deterministic.
 
+mod door;
 mod harness;
 mod integrity_check;
 mod pairs;
 mod paper;
 mod sigma;
 
+pub use door::{door_figures, AngleBin, DoorFigures, ErrorFigures};
 pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
 pub use integrity_check::{
     integrity_check, DetectionRow, FalseAlarms, IntegrityCheckArgs, IntegrityCheckReport,
