@@ -69,6 +69,9 @@ pub struct DoorFigures {
     /// The monitor's predicted MDB of the door plane (closed door, mean over pairs), as door
     /// angle: displacement MDB turned into the angle that moves the plane that far, rotation MDB.
     pub predicted_mdb_deg: [f64; 2],
+    /// Mean planes extracted per epoch, and mean planes associated in a consecutive pair.
+    pub planes_per_epoch: f64,
+    pub matched_per_pair: f64,
     pub consecutive_pairs: usize,
     /// Consecutive pairs integrity left usable.
     pub usable: usize,
@@ -104,12 +107,14 @@ pub fn door_figures(runs: usize, seed: u64) -> Result<DoorFigures, StudyError> {
         .collect();
     let mut predicted = [Vec::new(), Vec::new()];
     let (mut consecutive, mut usable) = (0, 0);
+    let (mut planes, mut matched) = (0, 0);
     let mut with = ErrorSums::default();
     let mut without = ErrorSums::default();
     for _ in 0..runs {
         let epochs: Vec<LabelledEpoch> = (0..captures)
             .map(|c| rig.capture(c as f64 * CAPTURE_STEP_S))
             .collect();
+        planes += epochs.iter().map(|e| e.planes.planes.len()).sum::<usize>();
         for j in 1..captures {
             let outcome = check_pair(&rig, &monitor, epochs[0].clone(), epochs[j].clone(), None);
             let change = (angle(epochs[j].t0) - angle(epochs[0].t0)).abs();
@@ -133,6 +138,7 @@ pub fn door_figures(runs: usize, seed: u64) -> Result<DoorFigures, StudyError> {
                 None,
             );
             consecutive += 1;
+            matched += outcome.epoch.matches.len();
             if let Some(errors) = outcome.errors_all_planes() {
                 without.add(&errors, &outcome, false);
             }
@@ -154,6 +160,8 @@ pub fn door_figures(runs: usize, seed: u64) -> Result<DoorFigures, StudyError> {
             door_angle_moving_plane(&scenario, door, displacement_mdb_m),
             mean(&predicted[1]).to_degrees(),
         ],
+        planes_per_epoch: planes as f64 / (runs * captures).max(1) as f64,
+        matched_per_pair: matched as f64 / consecutive.max(1) as f64,
         consecutive_pairs: consecutive,
         usable,
         with_exclusion: with.figures(),
@@ -327,8 +335,8 @@ impl fmt::Display for DoorFigures {
         )?;
         writeln!(
             f,
-            "consecutive 1 Hz pairs: {}, usable after integrity: {}",
-            self.consecutive_pairs, self.usable
+            "planes per epoch {:.2}, associated per pair {:.2}; consecutive 1 Hz pairs: {}, usable after integrity: {}",
+            self.planes_per_epoch, self.matched_per_pair, self.consecutive_pairs, self.usable
         )?;
         for (name, e) in [
             ("with exclusion", &self.with_exclusion),
