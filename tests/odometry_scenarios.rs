@@ -135,3 +135,28 @@ fn hallway_scenarios_solve_with_honest_covariances() {
         assert_honest(summary, 0.2);
     }
 }
+
+/// The two hallway scanners' lines on the left wall cross near their centres (both scan
+/// planes contain the body's y axis), where eq 8 degenerates; the plane is then fitted to both
+/// lines, and its predicted sigmas must stay honest (0.8x to 3x the Monte Carlo scatter).
+#[test]
+fn a_side_wall_seen_by_crossing_lines_is_found_with_honest_sigmas() {
+    let scenario = Scenario::builtin("hallway-hover").unwrap();
+    let runs = 300;
+    let table = ladar_odometer::study::plane_sigma_table(
+        &scenario,
+        &OdometryConfig::default(),
+        0.0,
+        runs,
+        5,
+    )
+    .unwrap();
+    println!("{table}");
+    let wall = table.rows.iter().find(|r| r.plane == "left-wall").unwrap();
+    assert!(wall.found * 10 >= runs * 9, "{table}");
+    // Three standard errors of a standard deviation from `runs` samples below 0.8.
+    let lowest = 0.8 * (1.0 - 3.0 / (2.0 * runs as f64).sqrt());
+    for ratio in wall.ratios() {
+        assert!((lowest..=3.0).contains(&ratio), "{table}");
+    }
+}

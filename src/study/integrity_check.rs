@@ -81,6 +81,14 @@ pub struct FalseAlarms {
     pub configured: f64,
 }
 
+/// Detection of one moved plane at one bias size.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PlaneDetection {
+    pub plane: String,
+    pub pairs: usize,
+    pub detected: usize,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct DetectionRow {
     /// Bias size, metres or degrees.
@@ -92,6 +100,8 @@ pub struct DetectionRow {
     /// Pairs where exactly the moved plane's matches were excluded and the rest passed.
     pub excluded_right_plane: usize,
     pub rate: f64,
+    /// The same by the plane that moved.
+    pub per_plane: Vec<PlaneDetection>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -155,6 +165,10 @@ pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport
         .filter(|l| l[0] == l[1])
         .filter_map(|l| l[0])
         .collect();
+    let names: Vec<(usize, String)> = movable
+        .iter()
+        .map(|&p| (p, label_name(&scenario, &[Some(p), Some(p)])))
+        .collect();
     let detection = |rig: &mut Rig, make: &dyn Fn(usize, f64) -> Fault, bias: f64| {
         let outcomes: Vec<PairOutcome> = (0..args.runs)
             .map(|r| {
@@ -162,7 +176,7 @@ pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport
                 run_pair(rig, &monitor, Some(fault))
             })
             .collect();
-        detection_row(bias, &outcomes)
+        detection_row(bias, &outcomes, &names)
     };
     let translation = TRANSLATION_BIASES_M
         .iter()
@@ -354,7 +368,7 @@ fn false_alarms(outcomes: &[PairOutcome], configured: f64) -> FalseAlarms {
     }
 }
 
-fn detection_row(bias: f64, outcomes: &[PairOutcome]) -> DetectionRow {
+fn detection_row(bias: f64, outcomes: &[PairOutcome], names: &[(usize, String)]) -> DetectionRow {
     let fault_not_in_solve = outcomes.iter().filter(|o| !o.fault_in_solve()).count();
     let detected = outcomes.iter().filter(|o| o.detected()).count();
     DetectionRow {
@@ -364,13 +378,27 @@ fn detection_row(bias: f64, outcomes: &[PairOutcome]) -> DetectionRow {
         detected,
         excluded_right_plane: outcomes.iter().filter(|o| o.excluded_the_fault()).count(),
         rate: detected as f64 / outcomes.len().max(1) as f64,
+        per_plane: names
+            .iter()
+            .map(|(patch, name)| {
+                let moved: Vec<&PairOutcome> = outcomes
+                    .iter()
+                    .filter(|o| o.fault.is_some_and(|f| f.patch() == *patch))
+                    .collect();
+                PlaneDetection {
+                    plane: name.clone(),
+                    pairs: moved.len(),
+                    detected: moved.iter().filter(|o| o.detected()).count(),
+                }
+            })
+            .collect(),
     }
 }
 
 fn write_detection(f: &mut fmt::Formatter<'_>, unit: &str, rows: &[DetectionRow]) -> fmt::Result {
-    writeln!(
+    write!(
         f,
-        "{:>8} {:>7} {:>10} {:>9} {:>9} {:>9}",
+        "{:>8} {:>7} {:>10} {:>9} {:>9} {:>9} | rate by moved plane:",
         format!("bias {unit}"),
         "pairs",
         "not in fit",
@@ -378,12 +406,24 @@ fn write_detection(f: &mut fmt::Formatter<'_>, unit: &str, rows: &[DetectionRow]
         "rate",
         "excl ok"
     )?;
+    for plane in rows.first().map_or(&[][..], |r| &r.per_plane[..]) {
+        write!(f, " {:>10}", plane.plane)?;
+    }
+    writeln!(f)?;
     for r in rows {
-        writeln!(
+        write!(
             f,
-            "{:>8} {:>7} {:>10} {:>9} {:>9.4} {:>9}",
+            "{:>8} {:>7} {:>10} {:>9} {:>9.4} {:>9} |                     ",
             r.bias, r.pairs, r.fault_not_in_solve, r.detected, r.rate, r.excluded_right_plane
         )?;
+        for plane in &r.per_plane {
+            write!(
+                f,
+                " {:>10.4}",
+                plane.detected as f64 / plane.pairs.max(1) as f64
+            )?;
+        }
+        writeln!(f)?;
     }
     Ok(())
 }

@@ -14,14 +14,16 @@ pub use door::{door_figures, AngleBin, DoorFigures, ErrorFigures};
 pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
 pub use integrity_check::{
     integrity_check, DetectionRow, FalseAlarms, IntegrityCheckArgs, IntegrityCheckReport,
-    PlaneFigures, RowFigures, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
+    PlaneDetection, PlaneFigures, RowFigures, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
 };
 pub use pairs::{check_pair, run_pair, PairOutcome};
 pub use paper::{
     paper_figures, six_plane_scenario, ExclusionRate, PaperFigures, ParityThresholds, Rate,
     PAPER_GAMMA,
 };
-pub use sigma::{paper_sigma_table, SigmaRow, SigmaTable, GROSS_ERROR_SIGMAS, PAPER_TABLE_1};
+pub use sigma::{
+    paper_sigma_table, plane_sigma_table, SigmaRow, SigmaTable, GROSS_ERROR_SIGMAS, PAPER_TABLE_1,
+};
 
 use crate::odometry::OdometryConfig;
 use crate::sim::ScenarioError;
@@ -38,7 +40,7 @@ pub enum StudyError {
     Config(String),
     #[error("scenario \"{scenario}\" is too short for two epochs: give it a duration_s of at least {needed_s:.2} s")]
     TooShort { scenario: String, needed_s: f64 },
-    #[error("scenario \"{scenario}\" shows {planes} planes in a fault-free epoch pair; the study needs at least 4")]
+    #[error("scenario \"{scenario}\" gives only {planes} planes matched in most fault-free epoch pairs; the study needs 4: give the scanners more distinct surfaces to see")]
     TooFewPlanes { scenario: String, planes: usize },
     #[error("runs must be at least {minimum}, got {runs}")]
     TooFewRuns { runs: usize, minimum: usize },

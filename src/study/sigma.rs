@@ -9,7 +9,7 @@
 use super::harness::Rig;
 use super::{paper_config, StudyError};
 use crate::odometry::planes::Plane;
-use crate::odometry::Odometer;
+use crate::odometry::{Odometer, OdometryConfig};
 use crate::sim::{PaperBias, Scenario};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
@@ -70,6 +70,9 @@ impl SigmaRow {
 
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct SigmaTable {
+    pub scenario: String,
+    /// Start of the captured epoch, seconds.
+    pub t: f64,
     pub runs: usize,
     pub seed: u64,
     pub rows: Vec<SigmaRow>,
@@ -93,12 +96,31 @@ struct Accumulator {
 
 /// The table from `runs` noisy captures of paper-sim's epoch 0.
 pub fn paper_sigma_table(runs: usize, seed: u64) -> Result<SigmaTable, StudyError> {
-    let scenario = Scenario::paper_sim(PaperBias::None);
-    let mut rig = Rig::new(&scenario, seed, paper_config())?;
+    plane_sigma_table(
+        &Scenario::paper_sim(PaperBias::None),
+        &paper_config(),
+        0.0,
+        runs,
+        seed,
+    )
+}
+
+/// The same table for any scenario's epoch starting at `t`, with any core settings: planes
+/// whose two lines lie on one patch, against that patch's true plane. The paper's columns are
+/// filled only for paper-sim.
+pub fn plane_sigma_table(
+    scenario: &Scenario,
+    config: &OdometryConfig,
+    t: f64,
+    runs: usize,
+    seed: u64,
+) -> Result<SigmaTable, StudyError> {
+    let mut rig = Rig::new(scenario, seed, config.clone())?;
+    let is_paper = scenario.name == "paper-sim";
     let mut stats = vec![Accumulator::default(); scenario.scene.patches.len()];
     let sigmas = [0, 1].map(|k| rig.sim.scanners()[k].range_sigma_m());
     for _ in 0..runs {
-        let epoch = rig.capture(0.0);
+        let epoch = rig.capture(t);
         let truth = rig.sim.true_planes_in_body(epoch.planes.t_ref);
         for (k, plane) in epoch.planes.planes.iter().enumerate() {
             let Some(patch) = (0..truth.len()).find(|&p| epoch.on_patch(k, p)) else {
@@ -133,9 +155,15 @@ pub fn paper_sigma_table(runs: usize, seed: u64) -> Result<SigmaTable, StudyErro
         .iter()
         .enumerate()
         .filter(|(_, s)| s.found >= 2)
-        .map(|(patch, s)| row(&scenario.scene.patches[patch].name, patch, s))
+        .map(|(patch, s)| row(&scenario.scene.patches[patch].name, patch, s, is_paper))
         .collect();
-    Ok(SigmaTable { runs, seed, rows })
+    Ok(SigmaTable {
+        scenario: scenario.name.clone(),
+        t,
+        runs,
+        seed,
+        rows,
+    })
 }
 
 /// Eq 25's `e_n` and eq 28's `sigma_rho` for the plane's two lines, as the paper writes them.
@@ -153,7 +181,7 @@ fn paper_bounds(odometer: &Odometer, plane: &Plane, sigmas: &[f64; 2]) -> (f64, 
     (e_n, rho_variance.sqrt())
 }
 
-fn row(name: &str, patch: usize, s: &Accumulator) -> SigmaRow {
+fn row(name: &str, patch: usize, s: &Accumulator, is_paper: bool) -> SigmaRow {
     let n = s.found as f64;
     let rms = |sum: f64| (sum / n).sqrt();
     let mean_abs = s.normal_abs / n;
@@ -168,7 +196,7 @@ fn row(name: &str, patch: usize, s: &Accumulator) -> SigmaRow {
         plane: name.to_string(),
         found: s.found,
         gross_errors: s.gross,
-        paper: PAPER_TABLE_1.get(patch).copied(),
+        paper: PAPER_TABLE_1.get(patch).copied().filter(|_| is_paper),
         eq25_normal_mrad: rms(s.eq25) * 1e3,
         predicted_normal_mrad: rms(s.predicted_normal) * 1e3,
         measured_normal_rms_mrad: rms(s.normal_squared) * 1e3,
@@ -186,8 +214,8 @@ impl fmt::Display for SigmaTable {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         writeln!(
             f,
-            "paper-sim plane sigmas, {} runs (seed {}); angles mrad, distances mm",
-            self.runs, self.seed
+            "{} plane sigmas at t = {} s, {} runs (seed {}); angles mrad, distances mm",
+            self.scenario, self.t, self.runs, self.seed
         )?;
         writeln!(
             f,
