@@ -1,4 +1,236 @@
-fn main() {
-    eprintln!("ladar-odometer: the command line arrives with the daemon issue");
-    std::process::exit(2);
+//! The `ladar-odometer` command line: thin, everything it does lives in `daemon`.
+
+use clap::{Parser, Subcommand};
+use ladar_odometer::daemon::pipeline::EventCounter;
+use ladar_odometer::daemon::replay::{self, ReplayOptions};
+use ladar_odometer::daemon::run::{self, RunOptions};
+use ladar_odometer::daemon::serve;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use tokio_util::sync::CancellationToken;
+
+#[derive(Parser)]
+#[command(
+    version,
+    about = "LADAR/IMU odometry for small UAVs flying without GNSS"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the daemon on the sensors of a configuration file.
+    Run {
+        #[arg(long)]
+        config: PathBuf,
+        /// Record every sensor byte to this MCAP file (overrides [recording] path).
+        #[arg(long, value_name = "FILE.mcap")]
+        record: Option<PathBuf>,
+        /// Write trajectory.tum, epochs.jsonl and mavlink.tlog here (overrides [output] dir).
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+    },
+    /// Replay a recording (MCAP, or a raw dump of one port) through the same pipeline.
+    Replay {
+        /// Defaults to the bundled data/hallway-hover.mcap.
+        recording: Option<PathBuf>,
+        #[arg(long, value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Pace the replay at the recorded times.
+        #[arg(long)]
+        realtime: bool,
+        /// Send the MAVLink stream too, e.g. udpout:127.0.0.1:14550.
+        #[arg(long, value_name = "ADDR")]
+        mavlink: Option<String>,
+        /// Keep what is complete in a truncated or damaged recording.
+        #[arg(long)]
+        tolerant: bool,
+    },
+    /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
+    /// driver's emulator exactly as a live run records it, with /truth.
+    Simulate {
+        #[arg(long, value_name = "NAME|FILE")]
+        scenario: String,
+        #[arg(long, value_name = "FILE.mcap")]
+        out: PathBuf,
+    },
+    /// Serve emulated sensors (SCIP and Xbus on ptys, SCIP on TCP where the configuration says
+    /// tcp:) in real time, so that `run` can be exercised with no hardware.
+    ServeEmulators {
+        /// The sensors of this configuration, standing still in a box room.
+        #[arg(
+            long,
+            conflicts_with = "scenario",
+            required_unless_present = "scenario"
+        )]
+        config: Option<PathBuf>,
+        /// Or a scenario's rig flying through its scene (built-in name or TOML file).
+        #[arg(long, value_name = "NAME|FILE")]
+        scenario: Option<String>,
+        /// With --scenario: serve the scanners on TCP, the first at this port (e.g. 10940).
+        #[arg(long, value_name = "PORT", requires = "scenario")]
+        tcp_port: Option<u16>,
+        /// Host to listen on with --tcp-port.
+        #[arg(long, default_value = "127.0.0.1", requires = "tcp_port")]
+        tcp_host: String,
+        /// Write a configuration pointing at the emulators, for `run --config`.
+        #[arg(long, value_name = "FILE")]
+        write_config: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_tracing();
+    let outcome = match cli.command {
+        Command::Run {
+            config,
+            record,
+            out,
+        } => run_daemon(RunOptions {
+            config,
+            record,
+            out,
+        }),
+        Command::Replay {
+            recording,
+            out,
+            realtime,
+            mavlink,
+            tolerant,
+        } => replay_recording(recording, out, realtime, mavlink, tolerant),
+        Command::Simulate { scenario, out } => simulate(&scenario, &out),
+        Command::ServeEmulators {
+            config,
+            scenario,
+            tcp_port,
+            tcp_host,
+            write_config,
+        } => serve_emulators(
+            config,
+            scenario,
+            tcp_port.map(|p| (tcp_host, p)),
+            write_config,
+        ),
+    };
+    match outcome {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("ladar-odometer: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Journald-friendly: no colours unless on a terminal, level from RUST_LOG (default info).
+fn init_tracing() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_ansi(std::io::stderr().is_terminal())
+        .with_writer(std::io::stderr)
+        .init();
+}
+
+fn runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the async runtime: {e}"))
+}
+
+/// Cancels `token` on SIGINT or SIGTERM.
+async fn cancel_on_signal(token: CancellationToken) {
+    use tokio::signal::unix::{signal, SignalKind};
+    let Ok(mut term) = signal(SignalKind::terminate()) else {
+        return;
+    };
+    tokio::select! {
+        _ = tokio::signal::ctrl_c() => {}
+        _ = term.recv() => {}
+    }
+    token.cancel();
+}
+
+fn run_daemon(options: RunOptions) -> Result<(), String> {
+    runtime()?.block_on(async {
+        let cancel = CancellationToken::new();
+        tokio::spawn(cancel_on_signal(cancel.clone()));
+        let report = run::run(options, |_, _| EventCounter::default(), cancel)
+            .await
+            .map_err(|e| e.to_string())?;
+        tracing::info!(
+            chunks = report.chunks,
+            dropped = report.dropped_chunks,
+            unrecorded = report.unrecorded_chunks,
+            "stopped"
+        );
+        Ok(())
+    })
+}
+
+fn replay_recording(
+    recording: Option<PathBuf>,
+    out: Option<PathBuf>,
+    realtime: bool,
+    mavlink: Option<String>,
+    tolerant: bool,
+) -> Result<(), String> {
+    let options = ReplayOptions {
+        recording: replay::resolve_recording(recording).map_err(|e| e.to_string())?,
+        out,
+        realtime,
+        mavlink,
+        tolerant,
+        progress: true,
+    };
+    let (summary, _) =
+        replay::replay(&options, |_, _| EventCounter::default()).map_err(|e| e.to_string())?;
+    print!("{summary}");
+    Ok(())
+}
+
+fn simulate(scenario: &str, out: &std::path::Path) -> Result<(), String> {
+    let summary =
+        ladar_odometer::daemon::simulate::simulate(scenario, out).map_err(|e| e.to_string())?;
+    println!(
+        "simulated {:.1} s into {}: {} scans, {} IMU samples, {} truth samples, {} chunks",
+        summary.duration_s,
+        out.display(),
+        summary.scans,
+        summary.imu_samples,
+        summary.truth_samples,
+        summary.chunks
+    );
+    Ok(())
+}
+
+fn serve_emulators(
+    config: Option<PathBuf>,
+    scenario: Option<String>,
+    scanner_tcp: Option<(String, u16)>,
+    write_config: Option<PathBuf>,
+) -> Result<(), String> {
+    let source = match (&config, &scenario) {
+        (Some(path), _) => serve::Source::Config(path),
+        (None, Some(name)) => serve::Source::Scenario {
+            name,
+            scanner_tcp: scanner_tcp
+                .as_ref()
+                .map(|(host, port)| (host.as_str(), *port)),
+        },
+        (None, None) => return Err("give --config FILE or --scenario NAME".into()),
+    };
+    runtime()?.block_on(async {
+        let cancel = CancellationToken::new();
+        tokio::spawn(cancel_on_signal(cancel.clone()));
+        serve::serve_until_cancelled(source, write_config.as_deref(), cancel)
+            .await
+            .map_err(|e| e.to_string())
+    })
 }

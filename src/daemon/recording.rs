@@ -15,10 +15,11 @@ use mcap::records::{MessageHeader, Metadata, Record};
 use mcap::{McapError, WriteOptions, Writer};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::fs::File;
-use std::io::{self, BufWriter, Seek, Write};
+use std::io::{self, BufReader, BufWriter, Read, Seek, Write};
 use std::path::{Path, PathBuf};
 
 pub const CONFIG_METADATA_NAME: &str = "ladar-odometer.config";
@@ -311,7 +312,8 @@ impl fmt::Display for Loss {
     }
 }
 
-/// A whole recording in memory, device messages in `log_time` order.
+/// A whole recording in memory, device messages in file order (the order the live daemon
+/// consumed them, which replay must keep to reproduce it bit for bit).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recording {
     pub format: Format,
@@ -356,6 +358,226 @@ impl Recording {
             truth: Vec::new(),
             loss: None,
         })
+    }
+}
+
+/// Largest top-level record the streaming reader accepts: chunks are closed about once a
+/// second, so a real one is far smaller; a bigger length is damage, not a reason to allocate.
+const MAX_STREAMED_RECORD: u64 = 256 << 20;
+
+/// Reads a recording message by message in file order, holding at most one MCAP chunk in
+/// memory, so that a long flight replays in a few megabytes.
+pub struct RecordingReader<'p> {
+    input: BufReader<File>,
+    parser: McapParser<'p>,
+    format: Format,
+    offset: u64,
+    pending: VecDeque<RecordedMessage>,
+    raw_head: Option<Vec<u8>>,
+    done: bool,
+    loss: Option<Loss>,
+    length: u64,
+}
+
+impl<'p> RecordingReader<'p> {
+    pub fn open(path: &'p Path, mode: ReadMode) -> Result<Self, RecordingError> {
+        let open_error = |source| RecordingError::Open {
+            path: path.to_path_buf(),
+            source,
+        };
+        let file = File::open(path).map_err(open_error)?;
+        let length = file.metadata().map_err(open_error)?.len();
+        let mut input = BufReader::with_capacity(1 << 16, file);
+        let mut head = Vec::with_capacity(SNIFF_BYTES);
+        (&mut input)
+            .take(SNIFF_BYTES as u64)
+            .read_to_end(&mut head)
+            .map_err(open_error)?;
+        let mut reader = Self {
+            input,
+            parser: McapParser::new(path, mode),
+            format: Format::Mcap,
+            offset: 0,
+            pending: VecDeque::new(),
+            raw_head: None,
+            done: false,
+            loss: None,
+            length,
+        };
+        if head.starts_with(mcap::MAGIC) {
+            reader.offset = mcap::MAGIC.len() as u64;
+            reader
+                .input
+                .seek(io::SeekFrom::Start(reader.offset))
+                .map_err(open_error)?;
+            // Metadata (the configuration) precedes the first message.
+            reader.fill_until_message()?;
+        } else {
+            let encoding = sniff_raw_dump(&head).ok_or_else(|| RecordingError::UnknownFormat {
+                path: path.to_path_buf(),
+            })?;
+            reader.format = Format::RawDump(encoding);
+            reader.raw_head = Some(head);
+        }
+        Ok(reader)
+    }
+
+    pub fn format(&self) -> Format {
+        self.format
+    }
+
+    /// The configuration the recording was made with, if it says.
+    pub fn config_toml(&self) -> Option<&str> {
+        self.parser.config_toml.as_deref()
+    }
+
+    /// Bytes read so far and the file's length, for progress.
+    pub fn position(&self) -> (u64, u64) {
+        (self.offset.min(self.length), self.length)
+    }
+
+    /// Set once a tolerant read met damage.
+    pub fn loss(&self) -> Option<&Loss> {
+        self.loss.as_ref()
+    }
+
+    /// `/truth` samples read so far, in `log_time` order once the file is read.
+    pub fn take_truth(&mut self) -> Vec<TruthSample> {
+        self.parser.truth.sort_by_key(|(log_time, _)| *log_time);
+        std::mem::take(&mut self.parser.truth)
+            .into_iter()
+            .map(|(_, sample)| sample)
+            .collect()
+    }
+
+    /// The next device message in file order, `None` at the end.
+    pub fn next_message(&mut self) -> Result<Option<RecordedMessage>, RecordingError> {
+        loop {
+            if let Some(message) = self.pending.pop_front() {
+                return Ok(Some(message));
+            }
+            if self.done {
+                return Ok(None);
+            }
+            match self.format {
+                Format::Mcap => self.read_record()?,
+                Format::RawDump(encoding) => self.read_raw(encoding)?,
+            }
+        }
+    }
+
+    fn fill_until_message(&mut self) -> Result<(), RecordingError> {
+        while self.pending.is_empty() && !self.done {
+            self.read_record()?;
+        }
+        Ok(())
+    }
+
+    fn read_raw(&mut self, encoding: Encoding) -> Result<(), RecordingError> {
+        let mut data = match self.raw_head.take() {
+            Some(head) => head,
+            None => {
+                let mut buffer = Vec::with_capacity(RAW_DUMP_CHUNK);
+                (&mut self.input)
+                    .take(RAW_DUMP_CHUNK as u64)
+                    .read_to_end(&mut buffer)
+                    .map_err(|source| RecordingError::Open {
+                        path: self.parser.path.to_path_buf(),
+                        source,
+                    })?;
+                buffer
+            }
+        };
+        if data.is_empty() {
+            self.done = true;
+        }
+        self.offset += data.len() as u64;
+        while !data.is_empty() {
+            let rest = data.split_off(data.len().min(RAW_DUMP_CHUNK));
+            self.pending.push_back(RecordedMessage {
+                log_time_ns: 0,
+                sensor: RAW_DUMP_SENSOR.to_string(),
+                direction: Direction::Rx,
+                encoding,
+                data,
+            });
+            data = rest;
+        }
+        Ok(())
+    }
+
+    fn read_record(&mut self) -> Result<(), RecordingError> {
+        let at = self.offset;
+        let mut header = [0u8; 9];
+        let body = match read_full(&mut self.input, &mut header) {
+            Ok(true) => {
+                let length = u64::from_le_bytes(header[1..].try_into().expect("8 bytes"));
+                if length > MAX_STREAMED_RECORD {
+                    return self.damaged(at, format!("record of {length} bytes is implausible"));
+                }
+                let mut body = vec![0u8; length as usize];
+                match read_full(&mut self.input, &mut body) {
+                    Ok(true) => body,
+                    Ok(false) => {
+                        return self.damaged(at, format!("record of {length} bytes cut short"))
+                    }
+                    Err(e) => return self.damaged(at, e.to_string()),
+                }
+            }
+            Ok(false) => {
+                return self.damaged(at, "no footer: the recording was not finished".into())
+            }
+            Err(e) => return self.damaged(at, e.to_string()),
+        };
+        self.offset += 9 + body.len() as u64;
+        let record = match mcap::parse_record(header[0], &body) {
+            Ok(record) => record,
+            Err(e) => return self.damaged(at, e.to_string()),
+        };
+        let outcome = match self.parser.record(record)? {
+            Step::Continue => Ok(()),
+            Step::Chunk(inner) => self
+                .parser
+                .records(&inner, 0, false)?
+                .map_err(|damage| format!("chunk: {}", damage.reason)),
+            Step::Damaged(reason) => Err(reason),
+            Step::End => {
+                self.done = true;
+                Ok(())
+            }
+        };
+        self.pending.extend(self.parser.messages.drain(..));
+        match outcome {
+            Ok(()) => Ok(()),
+            Err(reason) => self.damaged(at, reason),
+        }
+    }
+
+    fn damaged(&mut self, offset: u64, reason: String) -> Result<(), RecordingError> {
+        self.done = true;
+        match self.parser.mode {
+            ReadMode::Strict => Err(RecordingError::Corrupt {
+                path: self.parser.path.to_path_buf(),
+                offset,
+                reason,
+            }),
+            ReadMode::Tolerant => {
+                self.loss = Some(Loss {
+                    bytes: self.length.saturating_sub(offset),
+                    reason,
+                });
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Fills `buffer`; false if the input ended first (a partial read counts as ended).
+fn read_full(input: &mut impl Read, buffer: &mut [u8]) -> io::Result<bool> {
+    match input.read_exact(buffer) {
+        Ok(()) => Ok(true),
+        Err(e) if e.kind() == io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(e),
     }
 }
 
@@ -416,7 +638,6 @@ impl<'p> McapParser<'p> {
             },
             Err(fatal) => return Err(fatal),
         };
-        self.messages.sort_by_key(|m| m.log_time_ns);
         self.truth.sort_by_key(|(log_time, _)| *log_time);
         Ok(Recording {
             format: Format::Mcap,
@@ -757,6 +978,67 @@ mod tests {
         assert_eq!((truth.t, truth.p, truth.v), (want.t, want.p, want.v));
         assert!(truth.q.angle_to(&want.q) < 1e-12);
         std::fs::remove_file(&file).unwrap();
+    }
+
+    #[test]
+    fn streaming_reader_gives_file_order_even_when_log_times_go_back() {
+        let file = scratch("streaming.mcap");
+        let mut recorder = Recorder::create(&file, CONFIG).unwrap();
+        // Two sensor tasks stamp their reads independently, so consumption order can run
+        // against log_time; replay must keep the order of consumption.
+        let times = [5_000u64, 4_000, 6_000, 1_000];
+        for (i, t) in times.iter().enumerate() {
+            recorder
+                .bytes("front", Encoding::Scip2, Direction::Rx, *t, &[i as u8])
+                .unwrap();
+            if i == 1 {
+                recorder.flush().unwrap();
+            }
+        }
+        recorder.truth(10, &truth_sample()).unwrap();
+        drop(recorder);
+        let mut reader = RecordingReader::open(&file, ReadMode::Strict).unwrap();
+        assert_eq!(reader.config_toml(), Some(CONFIG));
+        let mut got = Vec::new();
+        while let Some(message) = reader.next_message().unwrap() {
+            got.push((message.log_time_ns, message.data[0]));
+        }
+        assert_eq!(got, [(5_000, 0), (4_000, 1), (6_000, 2), (1_000, 3)]);
+        assert_eq!(reader.take_truth().len(), 1);
+        let whole = Recording::open(&file, ReadMode::Strict).unwrap();
+        let order: Vec<u64> = whole.messages.iter().map(|m| m.log_time_ns).collect();
+        assert_eq!(order, times);
+    }
+
+    #[test]
+    fn streaming_reader_reports_truncation_strictly_and_keeps_chunks_tolerantly() {
+        let file = scratch("streaming-cut.mcap");
+        let mut recorder = Recorder::create(&file, CONFIG).unwrap();
+        record_all(&mut recorder);
+        recorder.flush().unwrap();
+        recorder
+            .bytes("imu", Encoding::Xbus, Direction::Rx, 1, &[1, 2, 3])
+            .unwrap();
+        std::mem::forget(recorder);
+        let mut strict = RecordingReader::open(&file, ReadMode::Strict).unwrap();
+        let error = loop {
+            match strict.next_message() {
+                Ok(Some(_)) => {}
+                Ok(None) => panic!("a cut file must not read as complete"),
+                Err(e) => break e,
+            }
+        };
+        assert!(
+            error.to_string().contains("truncated or corrupt"),
+            "{error}"
+        );
+        let mut tolerant = RecordingReader::open(&file, ReadMode::Tolerant).unwrap();
+        let mut count = 0;
+        while tolerant.next_message().unwrap().is_some() {
+            count += 1;
+        }
+        assert_eq!(count, traffic().len());
+        assert!(tolerant.loss().is_some());
     }
 
     #[test]

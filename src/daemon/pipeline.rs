@@ -1,0 +1,347 @@
+//! The fusion loop's synchronous core, identical live and in replay: chunks of device bytes in
+//! consumption order -> per-sensor decoders -> an [`Estimator`] -> estimates and epoch records.
+//!
+//! Staleness is decided from the chunks alone, so replay reproduces it: a sensor whose link
+//! dropped (the sensor task sends an empty rx chunk, which is recorded like any other) or that
+//! has been silent for `STALE_AFTER_NS` while others spoke is marked stale, and fresh again on
+//! its next bytes.
+
+use super::config::Config;
+use super::recording::{Direction, Encoding};
+use crate::estimate::Estimate;
+use crate::fusion::sources::{DecodeCounts, SensorDecoder, SensorEvent, SensorSetup};
+use crate::sensors::{ImuSample, Scan, ScannerGeometry};
+use serde::Serialize;
+
+/// Silence after which a sensor is declared stale: ten scans of the slowest supported scanner.
+pub const STALE_AFTER_NS: u64 = 1_000_000_000;
+
+/// One chunk of bytes read from (`Rx`) or written to (`Tx`) sensor number `sensor`, stamped with
+/// host monotonic ns since the daemon started. An empty `Rx` chunk says the link was lost.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Chunk {
+    pub sensor: usize,
+    pub direction: Direction,
+    pub log_time_ns: u64,
+    pub data: Vec<u8>,
+}
+
+/// A configured sensor as the pipeline and the recording know it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SensorSpec {
+    /// Recording topic `/<name>/rx`.
+    pub name: String,
+    pub encoding: Encoding,
+    pub setup: SensorSetup,
+}
+
+/// Scanners in configuration order, then the IMU: the sensor numbers of [`Chunk::sensor`].
+pub fn sensor_specs(config: &Config) -> Vec<SensorSpec> {
+    let scanners = config
+        .scanners
+        .iter()
+        .enumerate()
+        .map(|(index, scanner)| SensorSpec {
+            name: scanner.name.clone(),
+            encoding: Encoding::Scip2,
+            setup: SensorSetup::Scanner {
+                index,
+                geometry: None,
+            },
+        });
+    let imu = SensorSpec {
+        name: config.imu.name.clone(),
+        encoding: Encoding::Xbus,
+        setup: SensorSetup::Imu {
+            sample_time_modulus: match config.imu.series {
+                super::config::ImuSeries::Mti100 => xbus::ONE_DAY_TICKS,
+                super::config::ImuSeries::Auto | super::config::ImuSeries::Mti600 => {
+                    xbus::U32_TICKS
+                }
+            },
+            rate_hz: f64::from(config.imu.rate_hz.max(1)),
+        },
+    };
+    scanners.chain(std::iter::once(imu)).collect()
+}
+
+/// What an odometry epoch contributes to the replay summary.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct EpochCounts {
+    pub planes: usize,
+    /// Integrity detected a fault in this epoch.
+    pub detected: bool,
+    /// Planes excluded as outliers (a moving door, say).
+    pub excluded: usize,
+}
+
+/// The estimator the fusion loop drives: the real `Fusion` implements it. Calls come in the
+/// order the sensors' bytes were consumed, with host times in seconds.
+pub trait Estimator {
+    /// One line of `epochs.jsonl`.
+    type Epoch: Serialize;
+    /// A scanner reported its geometry (start-up, and after each reconnect).
+    fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry);
+    fn imu(&mut self, sample: ImuSample) -> Option<Estimate>;
+    fn scan(&mut self, scan: Scan) -> Option<Self::Epoch>;
+    /// Sensor `sensor` (a [`Chunk::sensor`] number) went stale or came back at host time `t`.
+    fn sensor_stale(&mut self, sensor: usize, stale: bool, t: f64);
+    fn epoch_counts(epoch: &Self::Epoch) -> EpochCounts;
+}
+
+/// What the pipeline hands its owner.
+// Handed straight to a callback and never stored in bulk, so boxing would only add an
+// allocation per estimate.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output<E> {
+    Estimate(Estimate),
+    Epoch(E),
+}
+
+pub struct Pipeline<E: Estimator> {
+    specs: Vec<SensorSpec>,
+    decoders: Vec<SensorDecoder>,
+    estimator: E,
+    events: Vec<SensorEvent>,
+    last_rx_ns: Vec<Option<u64>>,
+    stale: Vec<bool>,
+}
+
+impl<E: Estimator> Pipeline<E> {
+    pub fn new(specs: Vec<SensorSpec>, estimator: E) -> Self {
+        let n = specs.len();
+        Self {
+            decoders: specs.iter().map(|s| SensorDecoder::new(s.setup)).collect(),
+            specs,
+            estimator,
+            events: Vec::new(),
+            last_rx_ns: vec![None; n],
+            stale: vec![false; n],
+        }
+    }
+
+    /// Adds a sensor found in a recording without a configuration.
+    pub fn with_sensor(mut self, spec: SensorSpec) -> Self {
+        self.decoders.push(SensorDecoder::new(spec.setup));
+        self.specs.push(spec);
+        self.last_rx_ns.push(None);
+        self.stale.push(false);
+        self
+    }
+
+    pub fn specs(&self) -> &[SensorSpec] {
+        &self.specs
+    }
+
+    /// Number of the sensor called `name`, if configured.
+    pub fn sensor_named(&self, name: &str) -> Option<usize> {
+        self.specs.iter().position(|s| s.name == name)
+    }
+
+    /// Takes one chunk; `out` receives what it completed. Transmitted bytes are only recorded.
+    pub fn push(&mut self, chunk: &Chunk, mut out: impl FnMut(Output<E::Epoch>)) {
+        if chunk.direction != Direction::Rx || chunk.sensor >= self.decoders.len() {
+            return;
+        }
+        let t = chunk.log_time_ns as f64 / 1e9;
+        if chunk.data.is_empty() {
+            self.decoders[chunk.sensor].link_lost();
+            self.set_stale(chunk.sensor, true, t);
+            return;
+        }
+        if chunk.log_time_ns != 0 {
+            self.mark_silent_sensors(chunk.log_time_ns);
+            self.last_rx_ns[chunk.sensor] = Some(chunk.log_time_ns);
+        }
+        self.set_stale(chunk.sensor, false, t);
+        self.events.clear();
+        self.decoders[chunk.sensor].push(chunk.log_time_ns, &chunk.data, &mut self.events);
+        for event in self.events.drain(..) {
+            match event {
+                SensorEvent::Geometry { sensor, geometry } => {
+                    self.estimator.geometry(sensor, geometry)
+                }
+                SensorEvent::Scan(scan) => {
+                    if let Some(epoch) = self.estimator.scan(scan) {
+                        out(Output::Epoch(epoch));
+                    }
+                }
+                SensorEvent::Imu(sample) => {
+                    if let Some(estimate) = self.estimator.imu(sample) {
+                        out(Output::Estimate(estimate));
+                    }
+                }
+            }
+        }
+    }
+
+    fn mark_silent_sensors(&mut self, now_ns: u64) {
+        for sensor in 0..self.specs.len() {
+            let silent = self.last_rx_ns[sensor]
+                .is_some_and(|last| now_ns.saturating_sub(last) > STALE_AFTER_NS);
+            if silent {
+                self.set_stale(sensor, true, now_ns as f64 / 1e9);
+            }
+        }
+    }
+
+    fn set_stale(&mut self, sensor: usize, stale: bool, t: f64) {
+        if self.stale[sensor] != stale {
+            self.stale[sensor] = stale;
+            self.estimator.sensor_stale(sensor, stale, t);
+        }
+    }
+
+    pub fn is_stale(&self, sensor: usize) -> bool {
+        self.stale[sensor]
+    }
+
+    /// Decoder health per sensor, in sensor order.
+    pub fn decode_counts(&self) -> Vec<DecodeCounts> {
+        self.decoders.iter().map(SensorDecoder::counts).collect()
+    }
+
+    pub fn estimator(&self) -> &E {
+        &self.estimator
+    }
+
+    pub fn into_estimator(self) -> E {
+        self.estimator
+    }
+}
+
+/// One call the pipeline made on its estimator.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Traced {
+    Geometry(usize, ScannerGeometry),
+    Imu(ImuSample),
+    Scan(Scan),
+    Stale { sensor: usize, stale: bool, t: f64 },
+}
+
+/// Keeps every call, for comparing a live run with its replay; estimates nothing.
+#[derive(Debug, Default, Clone, PartialEq)]
+pub struct EventTrace {
+    pub calls: Vec<Traced>,
+}
+
+impl Estimator for EventTrace {
+    type Epoch = ();
+    fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
+        self.calls.push(Traced::Geometry(scanner, geometry));
+    }
+    fn imu(&mut self, sample: ImuSample) -> Option<Estimate> {
+        self.calls.push(Traced::Imu(sample));
+        None
+    }
+    fn scan(&mut self, scan: Scan) -> Option<()> {
+        self.calls.push(Traced::Scan(scan));
+        None
+    }
+    fn sensor_stale(&mut self, sensor: usize, stale: bool, t: f64) {
+        self.calls.push(Traced::Stale { sensor, stale, t });
+    }
+    fn epoch_counts(_: &()) -> EpochCounts {
+        EpochCounts::default()
+    }
+}
+
+/// Counts what arrives; the estimator of `run` and `replay` until `Fusion` is connected.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct EventCounter {
+    pub geometries: u64,
+    pub imu_samples: u64,
+    pub scans: u64,
+    pub stale_marks: u64,
+}
+
+impl Estimator for EventCounter {
+    type Epoch = ();
+    fn geometry(&mut self, _: usize, _: ScannerGeometry) {
+        self.geometries += 1;
+    }
+    fn imu(&mut self, _: ImuSample) -> Option<Estimate> {
+        self.imu_samples += 1;
+        None
+    }
+    fn scan(&mut self, _: Scan) -> Option<()> {
+        self.scans += 1;
+        None
+    }
+    fn sensor_stale(&mut self, _: usize, stale: bool, _: f64) {
+        self.stale_marks += u64::from(stale);
+    }
+    fn epoch_counts(_: &()) -> EpochCounts {
+        EpochCounts::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn specs() -> Vec<SensorSpec> {
+        let scanner = |index: usize, name: &str| SensorSpec {
+            name: name.into(),
+            encoding: Encoding::Scip2,
+            setup: SensorSetup::Scanner {
+                index,
+                geometry: None,
+            },
+        };
+        vec![scanner(0, "front"), scanner(1, "pitched")]
+    }
+
+    fn rx(sensor: usize, ms: u64, data: &[u8]) -> Chunk {
+        Chunk {
+            sensor,
+            direction: Direction::Rx,
+            log_time_ns: ms * 1_000_000,
+            data: data.to_vec(),
+        }
+    }
+
+    fn stale_marks(pipeline: &Pipeline<EventTrace>) -> Vec<(usize, bool, f64)> {
+        pipeline
+            .estimator()
+            .calls
+            .iter()
+            .filter_map(|c| match c {
+                Traced::Stale { sensor, stale, t } => Some((*sensor, *stale, *t)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_silent_sensor_goes_stale_when_another_speaks_and_fresh_on_its_next_bytes() {
+        let mut pipeline = Pipeline::new(specs(), EventTrace::default());
+        let mut ignore = |_: Output<()>| {};
+        pipeline.push(&rx(0, 100, b"\n"), &mut ignore);
+        pipeline.push(&rx(1, 100, b"\n"), &mut ignore);
+        pipeline.push(&rx(1, 1_000, b"\n"), &mut ignore);
+        assert!(
+            stale_marks(&pipeline).is_empty(),
+            "900 ms of silence is fine"
+        );
+        pipeline.push(&rx(1, 1_200, b"\n"), &mut ignore);
+        assert!(pipeline.is_stale(0));
+        pipeline.push(&rx(0, 1_300, b"\n"), &mut ignore);
+        assert_eq!(stale_marks(&pipeline), [(0, true, 1.2), (0, false, 1.3)]);
+    }
+
+    #[test]
+    fn an_empty_rx_chunk_is_a_lost_link_and_transmitted_bytes_are_not_decoded() {
+        let mut pipeline = Pipeline::new(specs(), EventTrace::default());
+        let mut ignore = |_: Output<()>| {};
+        pipeline.push(&rx(1, 10, b""), &mut ignore);
+        let tx = Chunk {
+            direction: Direction::Tx,
+            ..rx(0, 20, b"QT\n")
+        };
+        pipeline.push(&tx, &mut ignore);
+        assert_eq!(stale_marks(&pipeline), [(1, true, 0.01)]);
+        assert_eq!(pipeline.decode_counts()[0].chunks, 0);
+    }
+}

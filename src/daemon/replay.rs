@@ -1,0 +1,455 @@
+//! `replay`: a recording's chunks, in file order (the order the live daemon consumed them),
+//! through the same [`Pipeline`] as `run`, so the estimates come out bit for bit the same. The
+//! recording is streamed one MCAP chunk at a time, so a long flight replays in a few megabytes.
+
+use super::config::Config;
+use super::link::{Link, LinkAddress, LinkError};
+use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
+use super::outputs::{OutputError, Outputs};
+use super::pipeline::{sensor_specs, Chunk, Estimator, Output, Pipeline, SensorSpec};
+use super::recording::{
+    Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
+};
+use crate::estimate::Estimate;
+use crate::fusion::sources::{DecodeCounts, SensorSetup};
+use crate::sensors::TruthSample;
+use mavlink::dialects::ardupilotmega::MavMessage;
+use mavlink::MAVLinkV2MessageRaw;
+use std::fmt;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// The recording `replay` runs when given none.
+pub const BUNDLED_RECORDING: &str = "data/hallway-hover.mcap";
+
+#[derive(Debug, Clone, Default)]
+pub struct ReplayOptions {
+    pub recording: PathBuf,
+    pub out: Option<PathBuf>,
+    /// Pace the chunks at their recorded log times instead of as fast as possible.
+    pub realtime: bool,
+    /// Also send the MAVLink stream to this address (`udpout:127.0.0.1:14550`, ...).
+    pub mavlink: Option<String>,
+    /// Keep what is complete in a damaged recording instead of refusing it.
+    pub tolerant: bool,
+    /// Draw a progress bar (only drawn on a terminal in any case).
+    pub progress: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("no recording given and the bundled {0} is missing: pass a recording (ladar-odometer replay FILE.mcap) or make one with `ladar-odometer simulate --scenario NAME --out FILE.mcap`")]
+    NoBundledRecording(PathBuf),
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    #[error("recording {path} carries a configuration that no longer loads: {errors}")]
+    Config { path: PathBuf, errors: String },
+    #[error("recording from an unknown sensor: {path} has bytes from `{sensor}`, which its configuration does not list (replay the file the recording came with, or fix its [[scanner]]/[imu] names)")]
+    UnknownSensor { path: PathBuf, sensor: String },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error("{0}")]
+    Mavlink(#[from] LinkError),
+    #[error("cannot start the MAVLink runtime: {0}")]
+    Runtime(std::io::Error),
+}
+
+/// Velocity and attitude errors of the estimates against `/truth`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthErrors {
+    pub samples: usize,
+    pub velocity_rms_mps: f64,
+    pub attitude_rms_deg: f64,
+}
+
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReplaySummary {
+    pub duration_s: f64,
+    pub chunks: u64,
+    pub bytes: u64,
+    pub sensors: Vec<(String, DecodeCounts)>,
+    pub estimates: u64,
+    pub epochs: u64,
+    pub planes: u64,
+    pub detections: u64,
+    pub exclusions: u64,
+    pub truth: Option<TruthErrors>,
+    pub loss: Option<Loss>,
+}
+
+impl fmt::Display for ReplaySummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "replayed {:.1} s: {} chunks, {} bytes",
+            self.duration_s, self.chunks, self.bytes
+        )?;
+        for (name, c) in &self.sensors {
+            writeln!(
+                f,
+                "  {name}: {} scans, {} IMU samples, {} decode errors, {} dropped (before any PP geometry, or without device time), {} lost packets, {} clock restarts",
+                c.scans, c.imu_samples, c.decode_errors, c.dropped, c.lost_packets, c.clock_restarts
+            )?;
+        }
+        let per_epoch = if self.epochs > 0 {
+            self.planes as f64 / self.epochs as f64
+        } else {
+            0.0
+        };
+        writeln!(
+            f,
+            "  {} estimates, {} epochs, {per_epoch:.1} planes per epoch, {} detections, {} exclusions",
+            self.estimates, self.epochs, self.detections, self.exclusions
+        )?;
+        match &self.truth {
+            Some(t) => writeln!(
+                f,
+                "  against truth ({} estimates): velocity RMS {:.3} m/s, attitude RMS {:.2} deg",
+                t.samples, t.velocity_rms_mps, t.attitude_rms_deg
+            )?,
+            None => writeln!(f, "  no truth to compare with")?,
+        }
+        if let Some(loss) = &self.loss {
+            writeln!(f, "  warning: {loss}")?;
+        }
+        Ok(())
+    }
+}
+
+/// The recording to replay: the given one, or the bundled one if it exists.
+pub fn resolve_recording(given: Option<PathBuf>) -> Result<PathBuf, ReplayError> {
+    match given {
+        Some(path) => Ok(path),
+        None => {
+            let bundled = PathBuf::from(BUNDLED_RECORDING);
+            if bundled.exists() {
+                Ok(bundled)
+            } else {
+                Err(ReplayError::NoBundledRecording(bundled))
+            }
+        }
+    }
+}
+
+/// Replays `options.recording` through an estimator built from its configuration (`None` for a
+/// raw dump or a recording without one) and its sensors.
+pub fn replay<E: Estimator>(
+    options: &ReplayOptions,
+    make_estimator: impl FnOnce(Option<&Config>, &[SensorSpec]) -> E,
+) -> Result<(ReplaySummary, E), ReplayError> {
+    let path = options.recording.as_path();
+    let mode = if options.tolerant {
+        ReadMode::Tolerant
+    } else {
+        ReadMode::Strict
+    };
+    let mut reader = RecordingReader::open(path, mode)?;
+    let config = match reader.config_toml() {
+        Some(text) => Some(Config::parse(text, path).map_err(|e| ReplayError::Config {
+            path: path.to_path_buf(),
+            errors: e.to_string(),
+        })?),
+        None => None,
+    };
+    let mut specs = match &config {
+        Some(config) => sensor_specs(config),
+        None => Vec::new(),
+    };
+    // Without a configuration the sensors are whatever the file holds, in order of appearance.
+    let discover = config.is_none();
+    let first = reader.next_message()?;
+    if discover {
+        if let Some(message) = &first {
+            specs.push(spec_for(message, 0));
+        }
+    }
+    let estimator = make_estimator(config.as_ref(), &specs);
+    let mut pipeline = Pipeline::new(specs, estimator);
+    let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
+    let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
+    let progress = progress_bar(options.progress, reader.position().1);
+    let mut tally = Tally::default();
+    let started = Instant::now();
+    let mut next = first;
+    while let Some(message) = next {
+        let sensor = match pipeline.sensor_named(&message.sensor) {
+            Some(sensor) => sensor,
+            None if discover => {
+                let index = pipeline.specs().len();
+                pipeline = pipeline.with_sensor(spec_for(&message, index));
+                index
+            }
+            None => {
+                return Err(ReplayError::UnknownSensor {
+                    path: path.to_path_buf(),
+                    sensor: message.sensor,
+                })
+            }
+        };
+        if options.realtime {
+            tally.pace(message.log_time_ns, started);
+        }
+        tally.chunk(&message);
+        let chunk = Chunk {
+            sensor,
+            direction: message.direction,
+            log_time_ns: message.log_time_ns,
+            data: message.data,
+        };
+        let mut failure = None;
+        pipeline.push(&chunk, |output| {
+            if let Err(e) = tally.output::<E>(output, outputs.as_mut(), &mut mavlink) {
+                failure.get_or_insert(e);
+            }
+        });
+        if let Some(e) = failure {
+            return Err(e);
+        }
+        progress.set_position(reader.position().0);
+        next = reader.next_message()?;
+    }
+    progress.finish_and_clear();
+    if let Some(outputs) = outputs {
+        outputs.finish()?;
+    }
+    let truth = reader.take_truth();
+    let summary = ReplaySummary {
+        duration_s: tally.duration_s(),
+        chunks: tally.chunks,
+        bytes: tally.bytes,
+        sensors: pipeline
+            .specs()
+            .iter()
+            .map(|s| s.name.clone())
+            .zip(pipeline.decode_counts())
+            .collect(),
+        estimates: tally.estimates,
+        epochs: tally.epochs,
+        planes: tally.planes,
+        detections: tally.detections,
+        exclusions: tally.exclusions,
+        truth: truth_errors(&tally.kept, &truth),
+        loss: reader.loss().cloned(),
+    };
+    Ok((summary, pipeline.into_estimator()))
+}
+
+fn spec_for(message: &RecordedMessage, index: usize) -> SensorSpec {
+    let setup = match message.encoding {
+        Encoding::Scip2 => SensorSetup::Scanner {
+            index,
+            geometry: None,
+        },
+        Encoding::Xbus => SensorSetup::Imu {
+            sample_time_modulus: xbus::U32_TICKS,
+            rate_hz: 100.0,
+        },
+    };
+    SensorSpec {
+        name: message.sensor.clone(),
+        encoding: message.encoding,
+        setup,
+    }
+}
+
+fn progress_bar(wanted: bool, length: u64) -> indicatif::ProgressBar {
+    if !wanted {
+        return indicatif::ProgressBar::hidden();
+    }
+    // The default draw target is stderr and draws nothing unless it is a terminal.
+    let bar = indicatif::ProgressBar::new(length);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {bytes}/{total_bytes} {elapsed_precise} eta {eta}",
+    ) {
+        bar.set_style(style);
+    }
+    bar
+}
+
+/// Estimates kept for the truth comparison: at most this rate, so memory stays small.
+const KEPT_ESTIMATE_HZ: f64 = 20.0;
+
+#[derive(Default)]
+struct Tally {
+    chunks: u64,
+    bytes: u64,
+    first_ns: Option<u64>,
+    last_ns: u64,
+    estimates: u64,
+    epochs: u64,
+    planes: u64,
+    detections: u64,
+    exclusions: u64,
+    kept: Vec<Estimate>,
+}
+
+impl Tally {
+    fn chunk(&mut self, message: &RecordedMessage) {
+        self.chunks += 1;
+        self.bytes += message.data.len() as u64;
+        if message.log_time_ns != 0 {
+            self.first_ns.get_or_insert(message.log_time_ns);
+            self.last_ns = self.last_ns.max(message.log_time_ns);
+        }
+    }
+
+    fn duration_s(&self) -> f64 {
+        self.first_ns
+            .map_or(0.0, |first| (self.last_ns - first) as f64 * 1e-9)
+    }
+
+    fn pace(&self, log_time_ns: u64, started: Instant) {
+        let Some(first) = self.first_ns else {
+            return;
+        };
+        let due = Duration::from_nanos(log_time_ns.saturating_sub(first));
+        if let Some(wait) = due.checked_sub(started.elapsed()) {
+            std::thread::sleep(wait);
+        }
+    }
+
+    fn output<E: Estimator>(
+        &mut self,
+        output: Output<E::Epoch>,
+        outputs: Option<&mut Outputs>,
+        mavlink: &mut MavlinkOut,
+    ) -> Result<(), ReplayError> {
+        match output {
+            Output::Estimate(estimate) => {
+                self.estimates += 1;
+                if self
+                    .kept
+                    .last()
+                    .is_none_or(|last| estimate.t - last.t >= 1.0 / KEPT_ESTIMATE_HZ)
+                {
+                    self.kept.push(estimate.clone());
+                }
+                let outputs = match outputs {
+                    Some(outputs) => {
+                        outputs.trajectory(&estimate)?;
+                        Some(outputs)
+                    }
+                    None => None,
+                };
+                mavlink.estimate(&estimate, outputs)?;
+            }
+            Output::Epoch(epoch) => {
+                let counts = E::epoch_counts(&epoch);
+                self.epochs += 1;
+                self.planes += counts.planes as u64;
+                self.detections += u64::from(counts.detected);
+                self.exclusions += counts.excluded as u64;
+                if let Some(outputs) = outputs {
+                    outputs.epoch(&epoch)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// RMS velocity and attitude errors of `estimates` against the truth sample nearest in time.
+pub fn truth_errors(estimates: &[Estimate], truth: &[TruthSample]) -> Option<TruthErrors> {
+    if truth.is_empty() || estimates.is_empty() {
+        return None;
+    }
+    let (mut sum_v, mut sum_a, mut n) = (0.0, 0.0, 0usize);
+    for estimate in estimates {
+        let after = truth.partition_point(|s| s.t < estimate.t);
+        let nearest = [after.checked_sub(1), Some(after)]
+            .into_iter()
+            .flatten()
+            .filter_map(|i| truth.get(i))
+            .min_by(|a, b| {
+                (a.t - estimate.t)
+                    .abs()
+                    .total_cmp(&(b.t - estimate.t).abs())
+            })?;
+        sum_v += (estimate.velocity - nearest.v).norm_squared();
+        sum_a += estimate.attitude.angle_to(&nearest.q).to_degrees().powi(2);
+        n += 1;
+    }
+    Some(TruthErrors {
+        samples: n,
+        velocity_rms_mps: (sum_v / n as f64).sqrt(),
+        attitude_rms_deg: (sum_a / n as f64).sqrt(),
+    })
+}
+
+/// The MAVLink stream of a replay: frames to `mavlink.tlog` (stamped with the estimate time)
+/// and, with `--mavlink`, to a live link.
+struct MavlinkOut {
+    stream: MavlinkStream,
+    identity: Identity,
+    sequence: u8,
+    link: Option<(tokio::runtime::Runtime, Link)>,
+}
+
+impl MavlinkOut {
+    fn new(config: Option<&Config>, address: Option<&str>) -> Result<Self, ReplayError> {
+        let section = config.and_then(|c| c.mavlink.as_ref());
+        let (profile, rate_hz) = section
+            .map_or((Profile::Px4, Profile::Px4.default_rate_hz()), |m| {
+                (m.profile, m.rate_hz())
+            });
+        let identity = section.map_or(
+            Identity {
+                system_id: 1,
+                component_id: DEFAULT_COMPONENT_ID,
+            },
+            |m| m.identity(),
+        );
+        let link = match address {
+            None => None,
+            Some(text) => {
+                let address: LinkAddress = text.parse()?;
+                let runtime = tokio::runtime::Builder::new_current_thread()
+                    .enable_all()
+                    .build()
+                    .map_err(ReplayError::Runtime)?;
+                let link = runtime.block_on(Link::connect(&address, identity, None))?;
+                Some((runtime, link))
+            }
+        };
+        Ok(Self {
+            stream: MavlinkStream::new(profile, rate_hz, QualityPolicy::default()),
+            identity,
+            sequence: 0,
+            link,
+        })
+    }
+
+    fn estimate(
+        &mut self,
+        estimate: &Estimate,
+        outputs: Option<&mut Outputs>,
+    ) -> Result<(), ReplayError> {
+        let messages = [
+            self.stream.heartbeat_due(estimate.t),
+            self.stream.on_estimate(estimate.t, estimate),
+        ];
+        let time_us = (estimate.t * 1e6).max(0.0) as u64;
+        let mut outputs = outputs;
+        for message in messages.into_iter().flatten() {
+            let frame = match &self.link {
+                Some((runtime, link)) => runtime.block_on(link.send(&message))?,
+                None => Some(self.serialise(&message)),
+            };
+            if let (Some(frame), Some(outputs)) = (frame, outputs.as_deref_mut()) {
+                outputs.mavlink(time_us, &frame)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn serialise(&mut self, message: &MavMessage) -> Vec<u8> {
+        let header = mavlink::MavHeader {
+            sequence: self.sequence,
+            ..self.identity.header()
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        let mut raw = MAVLinkV2MessageRaw::new();
+        raw.serialize_message(header, message);
+        raw.raw_bytes().to_vec()
+    }
+}

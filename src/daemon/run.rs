@@ -1,0 +1,362 @@
+//! `run`: the live daemon. Sensor tasks feed one chunk queue; the fusion thread records each
+//! chunk, decodes it and drives the estimator through the same [`Pipeline`] as replay; the
+//! MAVLink task sends the newest estimate; the watchdog follows the fusion loop. Cancelling the
+//! token (SIGINT/SIGTERM in `main`) stops the sensors, drains the queue and finishes the
+//! recording.
+
+use super::chunk_queue::{ChunkQueue, Popped, QUEUE_CHUNKS};
+use super::config::{Config, ConfigErrors, ImuOutput, ScanStream};
+use super::link::{Link, LinkError};
+use super::mavlink_out::{MavlinkStream, QualityPolicy};
+use super::outputs::{OutputError, Outputs};
+use super::pipeline::{sensor_specs, Estimator, Output, Pipeline, SensorSpec};
+use super::recorder_thread::{self, RecorderHandle, RecorderSummary, Tap};
+use super::recording::{Recorder, RecordingError};
+use super::sensor_task::{self, Driver, HostClock, SensorLink};
+use super::{mavlink_task, watchdog};
+use crate::estimate::Estimate;
+use crate::fusion::sources::DecodeCounts;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    pub config: PathBuf,
+    /// Record to this file instead of the configuration's `[recording] path`.
+    pub record: Option<PathBuf>,
+    /// Write the output files here instead of the configuration's `[output] dir`.
+    pub out: Option<PathBuf>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("{0}")]
+    Config(#[from] ConfigErrors),
+    #[error("{0}")]
+    Port(String),
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error(transparent)]
+    Mavlink(#[from] LinkError),
+    #[error("MAVLink signing: {0}")]
+    Signing(String),
+    #[error("the fusion loop stopped unexpectedly: {0}")]
+    Fusion(String),
+}
+
+/// What a run did, once it has shut down.
+#[derive(Debug)]
+pub struct RunReport<E> {
+    pub estimator: E,
+    pub chunks: u64,
+    /// Chunks the fusion never saw because it fell behind.
+    pub dropped_chunks: u64,
+    /// Chunks the recorder could not keep up with.
+    pub unrecorded_chunks: u64,
+    pub recording: Option<(PathBuf, RecorderSummary)>,
+    pub sensors: Vec<(String, DecodeCounts)>,
+}
+
+/// Runs until `cancel`, then shuts down in order and reports.
+pub async fn run<E>(
+    options: RunOptions,
+    make_estimator: impl FnOnce(&Config, &[SensorSpec]) -> E,
+    cancel: CancellationToken,
+) -> Result<RunReport<E>, RunError>
+where
+    E: Estimator + Send + 'static,
+    E::Epoch: Send,
+{
+    let (config, config_text) = Config::load_with_text(&options.config)?;
+    let specs = sensor_specs(&config);
+    let links = sensor_links(&config);
+    for link in &links {
+        sensor_task::check_port(&link.name, &link.connection).map_err(RunError::Port)?;
+    }
+    let recording = recording_path(&config, options.record.clone());
+    let recorder = match &recording {
+        Some(path) => {
+            let recorder = Recorder::create(path, &config_text)?;
+            let flush = Duration::from_secs_f64(config.recording.flush_interval_s);
+            Some(recorder_thread::spawn(recorder, flush))
+        }
+        None => None,
+    };
+    let out_dir = options.out.clone().or_else(|| config.output.dir.clone());
+    let outputs = Arc::new(Mutex::new(
+        out_dir.as_deref().map(Outputs::create).transpose()?,
+    ));
+    let clock = HostClock::start();
+    let queue = Arc::new(ChunkQueue::new(QUEUE_CHUNKS));
+    let (estimates, estimate_rx) = watch::channel::<Option<Estimate>>(None);
+    let tracker = TaskTracker::new();
+    let tasks_cancel = cancel.child_token();
+    if let Some(section) = &config.mavlink {
+        let signing = section.signing().map_err(RunError::Signing)?;
+        let link = Arc::new(Link::connect(&section.address(), section.identity(), signing).await?);
+        spawn_mavlink(
+            &tracker,
+            link,
+            MavlinkStream::new(section.profile, section.rate_hz(), QualityPolicy::default()),
+            estimate_rx,
+            outputs.clone(),
+            clock,
+            tasks_cancel.clone(),
+        );
+    }
+    let streaming: Vec<Arc<AtomicBool>> = links.iter().map(|_| Arc::default()).collect();
+    for (link, flag) in links.into_iter().zip(&streaming) {
+        tracker.spawn(sensor_task::run(
+            link,
+            queue.clone(),
+            clock,
+            flag.clone(),
+            tasks_cancel.clone(),
+        ));
+    }
+    let progress = watchdog::Progress::default();
+    tracker.spawn(watchdog::run(progress.clone(), tasks_cancel.clone()));
+    let estimator = make_estimator(&config, &specs);
+    let fusion = {
+        let pipeline = Pipeline::new(specs, estimator);
+        let queue = queue.clone();
+        let handle = recorder.as_ref().map(|(handle, _)| handle.clone());
+        let outputs = outputs.clone();
+        std::thread::Builder::new()
+            .name("fusion".into())
+            .spawn(move || fusion_loop(pipeline, &queue, handle, &outputs, &estimates, &progress))
+            .map_err(|e| RunError::Fusion(e.to_string()))?
+    };
+    let unrecorded = recorder.as_ref().map(|(handle, _)| handle.clone());
+    tokio::select! {
+        () = cancel.cancelled() => {}
+        () = wait_streaming(&streaming) => {
+            tracing::info!(sensors = streaming.len(), "all sensors streaming");
+            watchdog::ready("all sensors streaming").await;
+            cancel.cancelled().await;
+        }
+    }
+    tracing::info!("shutting down");
+    watchdog::stopping().await;
+    tasks_cancel.cancel();
+    tracker.close();
+    tracker.wait().await;
+    queue.close();
+    let fused = tokio::task::spawn_blocking(move || fusion.join())
+        .await
+        .map_err(|e| RunError::Fusion(e.to_string()))?
+        .map_err(|_| RunError::Fusion("the fusion thread panicked".into()))?;
+    let unrecorded_chunks = unrecorded.as_ref().map_or(0, RecorderHandle::dropped);
+    drop(unrecorded);
+    let recording = match (recording, recorder) {
+        (Some(path), Some((handle, thread))) => {
+            // The thread finishes the file once the last handle is gone.
+            drop(handle);
+            let summary = tokio::task::spawn_blocking(move || thread.join())
+                .await
+                .map_err(|e| RunError::Fusion(e.to_string()))?
+                .map_err(|_| RunError::Fusion("the recorder thread panicked".into()))??;
+            tracing::info!(path = %path.display(), chunks = summary.chunks, "recording finished");
+            Some((path, summary))
+        }
+        _ => None,
+    };
+    if let Some(outputs) = outputs
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .take()
+    {
+        outputs.finish()?;
+    }
+    Ok(RunReport {
+        sensors: fused
+            .pipeline
+            .specs()
+            .iter()
+            .map(|s| s.name.clone())
+            .zip(fused.pipeline.decode_counts())
+            .collect(),
+        estimator: fused.pipeline.into_estimator(),
+        chunks: fused.chunks,
+        dropped_chunks: queue.dropped(),
+        unrecorded_chunks,
+        recording,
+    })
+}
+
+/// Scanners in configuration order, then the IMU, numbered as [`sensor_specs`] numbers them.
+pub fn sensor_links(config: &Config) -> Vec<SensorLink> {
+    let scanners = config.scanners.iter().enumerate().map(|(index, s)| {
+        let steps = s.first_step.zip(s.last_step).map(|(first, last)| {
+            (
+                u16::try_from(first).unwrap_or(u16::MAX),
+                u16::try_from(last).unwrap_or(u16::MAX),
+            )
+        });
+        SensorLink {
+            index,
+            name: s.name.clone(),
+            connection: s.connection(),
+            driver: Driver::Scip(scip::DeviceConfig {
+                data: match s.stream {
+                    ScanStream::Md => scip::DataKind::Distance,
+                    ScanStream::Me => scip::DataKind::DistanceIntensity,
+                },
+                steps,
+                cluster: u8::try_from(s.cluster).unwrap_or(u8::MAX),
+                ..scip::DeviceConfig::default()
+            }),
+        }
+    });
+    let imu = SensorLink {
+        index: config.scanners.len(),
+        name: config.imu.name.clone(),
+        connection: config.imu.connection(),
+        driver: Driver::Xbus(xbus::DeviceConfig {
+            imu_output: match config.imu.output {
+                ImuOutput::Rate => xbus::ImuOutput::Rates,
+                ImuOutput::Delta => xbus::ImuOutput::Increments,
+            },
+            rate_hz: u16::try_from(config.imu.rate_hz).unwrap_or(u16::MAX),
+            sample_time_wrap: match config.imu.series {
+                super::config::ImuSeries::Auto => xbus::SampleTimeWrap::FromProductCode,
+                super::config::ImuSeries::Mti100 => {
+                    xbus::SampleTimeWrap::Ticks(xbus::ONE_DAY_TICKS)
+                }
+                super::config::ImuSeries::Mti600 => xbus::SampleTimeWrap::Ticks(xbus::U32_TICKS),
+            },
+            ..xbus::DeviceConfig::default()
+        }),
+    };
+    scanners.chain(std::iter::once(imu)).collect()
+}
+
+/// `--record FILE`, else a new file named after the start time in `[recording] path`.
+fn recording_path(config: &Config, record: Option<PathBuf>) -> Option<PathBuf> {
+    record.or_else(|| {
+        let seconds = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        config
+            .recording
+            .directory()
+            .map(|dir| dir.join(format!("ladar-odometer-{seconds}.mcap")))
+    })
+}
+
+async fn wait_streaming(flags: &[Arc<AtomicBool>]) {
+    let mut poll = tokio::time::interval(Duration::from_millis(50));
+    while !flags.iter().all(|f| f.load(Ordering::Relaxed)) {
+        poll.tick().await;
+    }
+}
+
+fn spawn_mavlink(
+    tracker: &TaskTracker,
+    link: Arc<Link>,
+    stream: MavlinkStream,
+    estimates: watch::Receiver<Option<Estimate>>,
+    outputs: Arc<Mutex<Option<Outputs>>>,
+    clock: HostClock,
+    cancel: CancellationToken,
+) {
+    let tlog = move |frame: &[u8]| {
+        let wall_us = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_micros() as u64);
+        let mut outputs = outputs.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(out) = outputs.as_mut() {
+            if let Err(e) = out.mavlink(wall_us, frame) {
+                tracing::error!("{e}; output files stop here");
+                *outputs = None;
+            }
+        }
+    };
+    let receiver = {
+        let (link, cancel, tlog) = (link.clone(), cancel.clone(), tlog.clone());
+        async move {
+            let now_ns = move || clock.now_ns() as i64;
+            if let Err(e) = link.receive_loop(now_ns, tlog, cancel).await {
+                tracing::warn!("{e}");
+            }
+        }
+    };
+    tracker.spawn(receiver);
+    tracker.spawn(async move {
+        let now = move || clock.now_s();
+        if let Err(e) = mavlink_task::run(&link, stream, estimates, now, tlog, cancel).await {
+            tracing::error!("{e}; MAVLink output stopped");
+        }
+    });
+}
+
+struct Fused<E: Estimator> {
+    pipeline: Pipeline<E>,
+    chunks: u64,
+}
+
+/// The fusion thread: consumption order is recording order is replay order.
+fn fusion_loop<E: Estimator>(
+    mut pipeline: Pipeline<E>,
+    queue: &ChunkQueue,
+    recorder: Option<RecorderHandle>,
+    outputs: &Mutex<Option<Outputs>>,
+    estimates: &watch::Sender<Option<Estimate>>,
+    progress: &watchdog::Progress,
+) -> Fused<E> {
+    let names: Vec<(Arc<str>, _)> = pipeline
+        .specs()
+        .iter()
+        .map(|s| (Arc::from(s.name.as_str()), s.encoding))
+        .collect();
+    let mut chunks = 0;
+    loop {
+        progress.advance();
+        let chunk = match queue.pop(Duration::from_millis(100)) {
+            Popped::Chunk(chunk) => chunk,
+            Popped::Idle => continue,
+            Popped::Closed => break,
+        };
+        chunks += 1;
+        pipeline.push(&chunk, |output| deliver::<E>(output, outputs, estimates));
+        if let Some(recorder) = &recorder {
+            let (sensor, encoding) = names[chunk.sensor].clone();
+            recorder.record(Tap {
+                sensor,
+                encoding,
+                direction: chunk.direction,
+                log_time_ns: chunk.log_time_ns,
+                data: chunk.data,
+            });
+        }
+    }
+    Fused { pipeline, chunks }
+}
+
+fn deliver<E: Estimator>(
+    output: Output<E::Epoch>,
+    outputs: &Mutex<Option<Outputs>>,
+    estimates: &watch::Sender<Option<Estimate>>,
+) {
+    let mut files = outputs.lock().unwrap_or_else(PoisonError::into_inner);
+    let written = match (&output, files.as_mut()) {
+        (Output::Estimate(estimate), Some(out)) => out.trajectory(estimate),
+        (Output::Epoch(epoch), Some(out)) => out.epoch(epoch),
+        (_, None) => Ok(()),
+    };
+    if let Err(e) = written {
+        tracing::error!("{e}; output files stop here");
+        *files = None;
+    }
+    drop(files);
+    if let Output::Estimate(estimate) = output {
+        estimates.send_replace(Some(estimate));
+    }
+}

@@ -1,0 +1,411 @@
+//! One task per sensor: owns the port (exclusive serial, or TCP), runs the driver's sans-IO
+//! device for the handshake and the stream, and stamps every chunk read or written with host
+//! monotonic time into the chunk queue. A port that disappears (USB unplugged, TCP reset) is
+//! reopened with backoff and the device re-initialised; each change of link state is logged
+//! once, not each retry, and an empty rx chunk tells the fusion (and the recording) the link
+//! was lost.
+
+use super::chunk_queue::ChunkQueue;
+use super::config::SensorConnection;
+use super::pipeline::Chunk;
+use super::recording::Direction;
+use std::io;
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio_util::sync::CancellationToken;
+
+const BACKOFF_MIN: Duration = Duration::from_millis(250);
+const BACKOFF_MAX: Duration = Duration::from_secs(4);
+const WRITE_TIMEOUT: Duration = Duration::from_secs(1);
+const READ_BUFFER: usize = 16 * 1024;
+/// How long a stopping scanner gets to acknowledge QT (laser off) at shutdown.
+const STOP_GRACE: Duration = Duration::from_millis(300);
+
+/// Which driver a sensor speaks.
+#[derive(Debug, Clone)]
+pub enum Driver {
+    Scip(scip::DeviceConfig),
+    Xbus(xbus::DeviceConfig),
+}
+
+/// Everything a sensor task needs.
+#[derive(Debug, Clone)]
+pub struct SensorLink {
+    /// The [`Chunk::sensor`] number.
+    pub index: usize,
+    pub name: String,
+    pub connection: SensorConnection,
+    pub driver: Driver,
+}
+
+/// Host monotonic clock shared by every task: ns since the daemon started, never 0 (0 marks an
+/// untimed raw dump).
+#[derive(Debug, Clone, Copy)]
+pub struct HostClock(Instant);
+
+impl HostClock {
+    pub fn start() -> Self {
+        Self(Instant::now())
+    }
+    pub fn now_ns(&self) -> u64 {
+        (self.0.elapsed().as_nanos() as u64).max(1)
+    }
+    pub fn now_s(&self) -> f64 {
+        self.now_ns() as f64 * 1e-9
+    }
+}
+
+trait Port: AsyncRead + AsyncWrite + Send + Unpin {}
+impl<T: AsyncRead + AsyncWrite + Send + Unpin> Port for T {}
+
+/// Why a port cannot be used at all, checked once at start-up: a typo in the configuration is
+/// an error then, while a port that comes and goes later is retried.
+pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), String> {
+    let SensorConnection::Serial { path, .. } = connection else {
+        return Ok(());
+    };
+    use std::os::unix::fs::OpenOptionsExt;
+    // Linux O_NONBLOCK | O_NOCTTY: a UART waiting for carrier must not hang the start-up check,
+    // and a sensor port must never become our controlling terminal.
+    const NONBLOCKING_NO_CTTY: i32 = 0o4000 | 0o400;
+    match std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(NONBLOCKING_NO_CTTY)
+        .open(path)
+    {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(format!(
+            "sensor `{name}`: serial port {} does not exist: plug the sensor in, check the udev rule, or fix its `connection`",
+            path.display()
+        )),
+        Err(e) if e.kind() == io::ErrorKind::PermissionDenied => Err(format!(
+            "sensor `{name}`: no permission to open {}: add the daemon's user to the `dialout` group (or install the udev rule)",
+            path.display()
+        )),
+        Err(e) if e.raw_os_error() == Some(16) => Err(format!(
+            "sensor `{name}`: {} is busy: another program (or another ladar-odometer) holds it; stop that one first",
+            path.display()
+        )),
+        Err(e) => Err(format!(
+            "sensor `{name}`: cannot open {}: {e}",
+            path.display()
+        )),
+    }
+}
+
+async fn open(connection: &SensorConnection) -> io::Result<Pin<Box<dyn Port>>> {
+    match connection {
+        SensorConnection::Tcp { host, port } => {
+            let stream = tokio::net::TcpStream::connect((host.as_str(), *port)).await?;
+            stream.set_nodelay(true)?;
+            Ok(Box::pin(stream))
+        }
+        SensorConnection::Serial { path, baud } => {
+            let path = path.to_string_lossy().into_owned();
+            // USB CDC ignores the rate; a UART needs it.
+            let builder = tokio_serial::new(path, baud.unwrap_or(115_200));
+            let mut stream = tokio_serial::SerialStream::open(&builder)?;
+            stream
+                .set_exclusive(true)
+                .map_err(|e| io::Error::other(e.to_string()))?;
+            Ok(Box::pin(stream))
+        }
+    }
+}
+
+/// Link states, logged once per change.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum LinkState {
+    Starting,
+    Streaming,
+    Down(String),
+}
+
+/// Runs until `cancel`. `streaming` is set while the device streams, for readiness.
+pub async fn run(
+    link: SensorLink,
+    queue: Arc<ChunkQueue>,
+    clock: HostClock,
+    streaming: Arc<AtomicBool>,
+    cancel: CancellationToken,
+) {
+    let mut state = LinkState::Starting;
+    let mut backoff = BACKOFF_MIN;
+    while !cancel.is_cancelled() {
+        let outcome = match open(&link.connection).await {
+            Ok(port) => {
+                let mut session = Session {
+                    link: &link,
+                    queue: &queue,
+                    clock,
+                    streaming: &streaming,
+                    state: &mut state,
+                    garbage: 0,
+                };
+                let outcome = session.run(port, &cancel).await;
+                streaming.store(false, Ordering::Relaxed);
+                // Recorded, so that replay sees the loss exactly where the live fusion did.
+                queue.push(Chunk {
+                    sensor: link.index,
+                    direction: Direction::Rx,
+                    log_time_ns: clock.now_ns(),
+                    data: Vec::new(),
+                });
+                backoff = BACKOFF_MIN;
+                outcome
+            }
+            Err(e) => Err(format!("cannot open {}: {e}", link.connection)),
+        };
+        if let Err(reason) = outcome {
+            let down = LinkState::Down(reason_kind(&reason));
+            if state != down {
+                tracing::warn!(sensor = %link.name, "{reason}; retrying until it comes back");
+                state = down;
+            }
+        }
+        tokio::select! {
+            () = cancel.cancelled() => break,
+            () = tokio::time::sleep(backoff) => {}
+        }
+        backoff = (backoff * 2).min(BACKOFF_MAX);
+    }
+}
+
+/// The part of a failure that identifies it, without the changing details (so that the same
+/// failure repeating is not logged again).
+fn reason_kind(reason: &str) -> String {
+    reason.split(':').take(2).collect::<Vec<_>>().join(":")
+}
+
+struct Session<'a> {
+    link: &'a SensorLink,
+    queue: &'a ChunkQueue,
+    clock: HostClock,
+    streaming: &'a AtomicBool,
+    state: &'a mut LinkState,
+    garbage: u64,
+}
+
+/// The driver's state machine behind one interface. One per session, never moved in bulk.
+#[allow(clippy::large_enum_variant)]
+enum Device {
+    Scip(scip::Device),
+    Xbus(xbus::Device),
+}
+
+/// What a device said that the task acts on.
+enum Notice {
+    Streaming,
+    /// A corrupt reply or frame was dropped.
+    Garbage,
+    Failed(String),
+    Warning(String),
+}
+
+impl Device {
+    fn new(driver: &Driver, now: f64) -> Self {
+        match driver {
+            Driver::Scip(config) => {
+                let mut device = scip::Device::new(config.clone());
+                device.start();
+                Self::Scip(device)
+            }
+            Driver::Xbus(config) => {
+                Self::Xbus(xbus::Device::new(*config, Duration::from_secs_f64(now)))
+            }
+        }
+    }
+
+    fn transmit(&mut self, now: f64) -> Option<Vec<u8>> {
+        match self {
+            Self::Scip(d) => d.poll_transmit(now).map(<[u8]>::to_vec),
+            Self::Xbus(d) => d.poll_transmit().map(|f| f.as_bytes().to_vec()),
+        }
+    }
+
+    fn input(&mut self, now: f64, bytes: &[u8]) {
+        match self {
+            Self::Scip(d) => d.handle_input(now, bytes),
+            Self::Xbus(d) => d.handle_input(Duration::from_secs_f64(now), bytes),
+        }
+    }
+
+    fn timeout(&self) -> Option<f64> {
+        match self {
+            Self::Scip(d) => d.poll_timeout(),
+            Self::Xbus(d) => d.poll_timeout().map(|t| t.as_secs_f64()),
+        }
+    }
+
+    fn handle_timeout(&mut self, now: f64) {
+        match self {
+            Self::Scip(d) => d.handle_timeout(now),
+            Self::Xbus(d) => d.handle_timeout(Duration::from_secs_f64(now)),
+        }
+    }
+
+    fn stop(&mut self) {
+        if let Self::Scip(d) = self {
+            d.stop();
+        }
+    }
+
+    /// Drains the device's events; the task logs or acts on the few that matter.
+    fn notices(&mut self, out: &mut Vec<Notice>) {
+        match self {
+            Self::Scip(d) => {
+                while let Some(event) = d.poll_event() {
+                    match event {
+                        scip::DeviceEvent::Scan(scan) => d.recycle(scan),
+                        scip::DeviceEvent::StreamStarted { .. } => out.push(Notice::Streaming),
+                        scip::DeviceEvent::DecodeError(_) => out.push(Notice::Garbage),
+                        scip::DeviceEvent::Error(e @ scip::DeviceError::StreamStalled)
+                        | scip::DeviceEvent::Error(e @ scip::DeviceError::Status { .. }) => {
+                            out.push(Notice::Warning(e.to_string()))
+                        }
+                        scip::DeviceEvent::Error(e) => out.push(Notice::Failed(e.to_string())),
+                        _ => {}
+                    }
+                }
+            }
+            Self::Xbus(d) => {
+                while let Some(event) = d.poll_event() {
+                    match event {
+                        xbus::Event::Measuring => out.push(Notice::Streaming),
+                        xbus::Event::FrameDropped(_) | xbus::Event::BadMeasurement(_) => {
+                            out.push(Notice::Garbage)
+                        }
+                        xbus::Event::Failed(e) => out.push(Notice::Failed(e.to_string())),
+                        xbus::Event::DataTimeout { silent_for } => out.push(Notice::Warning(
+                            format!("IMU silent for {:.1} s", silent_for.as_secs_f64()),
+                        )),
+                        xbus::Event::DeviceError(code) => {
+                            out.push(Notice::Warning(format!("IMU reported error {code}")))
+                        }
+                        _ => {}
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl Session<'_> {
+    fn chunk(&self, direction: Direction, log_time_ns: u64, data: &[u8]) {
+        self.queue.push(Chunk {
+            sensor: self.link.index,
+            direction,
+            log_time_ns,
+            data: data.to_vec(),
+        });
+    }
+
+    async fn flush(
+        &self,
+        device: &mut Device,
+        port: &mut Pin<Box<dyn Port>>,
+    ) -> Result<(), String> {
+        loop {
+            let now_ns = self.clock.now_ns();
+            let Some(bytes) = device.transmit(now_ns as f64 * 1e-9) else {
+                return Ok(());
+            };
+            match tokio::time::timeout(WRITE_TIMEOUT, port.write_all(&bytes)).await {
+                Ok(Ok(())) => self.chunk(Direction::Tx, now_ns, &bytes),
+                Ok(Err(e)) => return Err(format!("write to {} failed: {e}", self.link.connection)),
+                Err(_) => return Err(format!("write to {} timed out", self.link.connection)),
+            }
+        }
+    }
+
+    fn act(&mut self, notices: &mut Vec<Notice>) -> Result<(), String> {
+        for notice in notices.drain(..) {
+            match notice {
+                Notice::Streaming => {
+                    self.streaming.store(true, Ordering::Relaxed);
+                    if *self.state != LinkState::Streaming {
+                        tracing::info!(sensor = %self.link.name, connection = %self.link.connection, "streaming");
+                        *self.state = LinkState::Streaming;
+                    }
+                }
+                Notice::Warning(text) => tracing::warn!(sensor = %self.link.name, "{text}"),
+                Notice::Garbage => {
+                    self.garbage += 1;
+                    if super::chunk_queue::is_power_of_ten(self.garbage) {
+                        tracing::warn!(
+                            sensor = %self.link.name,
+                            dropped = self.garbage,
+                            "corrupt bytes from the sensor dropped: check the cable, baud rate and that {} is this sensor",
+                            self.link.connection
+                        );
+                    }
+                }
+                Notice::Failed(text) => return Err(text),
+            }
+        }
+        Ok(())
+    }
+
+    async fn run(
+        &mut self,
+        mut port: Pin<Box<dyn Port>>,
+        cancel: &CancellationToken,
+    ) -> Result<(), String> {
+        let mut device = Device::new(&self.link.driver, self.clock.now_s());
+        let mut buffer = vec![0u8; READ_BUFFER];
+        let mut notices = Vec::new();
+        loop {
+            self.flush(&mut device, &mut port).await?;
+            device.notices(&mut notices);
+            self.act(&mut notices)?;
+            let deadline = device.timeout().map(|t| {
+                let wait = (t - self.clock.now_s()).max(0.0);
+                tokio::time::Instant::now() + Duration::from_secs_f64(wait.min(3600.0))
+            });
+            tokio::select! {
+                () = cancel.cancelled() => {
+                    self.stop(&mut device, &mut port, &mut buffer).await;
+                    return Ok(());
+                }
+                read = port.read(&mut buffer) => {
+                    let now_ns = self.clock.now_ns();
+                    match read {
+                        Ok(0) => return Err(format!("{} closed", self.link.connection)),
+                        Ok(n) => {
+                            self.chunk(Direction::Rx, now_ns, &buffer[..n]);
+                            device.input(now_ns as f64 * 1e-9, &buffer[..n]);
+                        }
+                        Err(e) => return Err(format!("read from {} failed: {e}", self.link.connection)),
+                    }
+                }
+                () = sleep_until(deadline) => device.handle_timeout(self.clock.now_s()),
+            }
+        }
+    }
+
+    /// Switches a scanner's laser off on the way out, recording the exchange like any other.
+    async fn stop(&self, device: &mut Device, port: &mut Pin<Box<dyn Port>>, buffer: &mut [u8]) {
+        device.stop();
+        if self.flush(device, port).await.is_err() {
+            return;
+        }
+        let until = tokio::time::Instant::now() + STOP_GRACE;
+        while let Ok(Ok(n)) = tokio::time::timeout_at(until, port.read(buffer)).await {
+            if n == 0 {
+                break;
+            }
+            self.chunk(Direction::Rx, self.clock.now_ns(), &buffer[..n]);
+        }
+    }
+}
+
+async fn sleep_until(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(deadline) => tokio::time::sleep_until(deadline).await,
+        None => std::future::pending().await,
+    }
+}
