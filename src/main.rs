@@ -70,6 +70,12 @@ enum Command {
         /// Or a scenario's rig flying through its scene (built-in name or TOML file).
         #[arg(long, value_name = "NAME|FILE")]
         scenario: Option<String>,
+        /// With --scenario: serve the scanners on TCP, the first at this port (e.g. 10940).
+        #[arg(long, value_name = "PORT", requires = "scenario")]
+        tcp_port: Option<u16>,
+        /// Host to listen on with --tcp-port.
+        #[arg(long, default_value = "127.0.0.1", requires = "tcp_port")]
+        tcp_host: String,
         /// Write a configuration pointing at the emulators, for `run --config`.
         #[arg(long, value_name = "FILE")]
         write_config: Option<PathBuf>,
@@ -100,8 +106,15 @@ fn main() -> ExitCode {
         Command::ServeEmulators {
             config,
             scenario,
+            tcp_port,
+            tcp_host,
             write_config,
-        } => serve_emulators(config, scenario, write_config),
+        } => serve_emulators(
+            config,
+            scenario,
+            tcp_port.map(|p| (tcp_host, p)),
+            write_config,
+        ),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -200,11 +213,17 @@ fn simulate(scenario: &str, out: &std::path::Path) -> Result<(), String> {
 fn serve_emulators(
     config: Option<PathBuf>,
     scenario: Option<String>,
+    scanner_tcp: Option<(String, u16)>,
     write_config: Option<PathBuf>,
 ) -> Result<(), String> {
     let source = match (&config, &scenario) {
         (Some(path), _) => serve::Source::Config(path),
-        (None, Some(name)) => serve::Source::Scenario(name),
+        (None, Some(name)) => serve::Source::Scenario {
+            name,
+            scanner_tcp: scanner_tcp
+                .as_ref()
+                .map(|(host, port)| (host.as_str(), *port)),
+        },
         (None, None) => return Err("give --config FILE or --scenario NAME".into()),
     };
     runtime()?.block_on(async {

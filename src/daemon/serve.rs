@@ -172,7 +172,12 @@ pub struct Served {
 /// rig flying its trajectory through its scene (scanners on ptys).
 pub enum Source<'a> {
     Config(&'a Path),
-    Scenario(&'a str),
+    /// A scenario; with `scanner_tcp = Some((host, port))` scanner `i` listens on TCP
+    /// `host:port+i` (Ethernet UST/UTM style) instead of a pty.
+    Scenario {
+        name: &'a str,
+        scanner_tcp: Option<(&'a str, u16)>,
+    },
 }
 
 /// Serves every sensor until `cancel`, printing where each is; with `write_config`, also writes
@@ -189,9 +194,18 @@ pub async fn serve_until_cancelled(
                 let scene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
                 (default_models(&config), config, text, scene)
             }
-            Source::Scenario(name) => {
+            Source::Scenario { name, scanner_tcp } => {
                 let scenario = crate::sim::Scenario::resolve(name)?;
-                let text = super::simulate::rig_config(&scenario)?;
+                let mut text = super::simulate::rig_config(&scenario)?;
+                if let Some((host, port)) = scanner_tcp {
+                    for (i, scanner) in scenario.scanners.iter().enumerate() {
+                        let tcp_port = u16::try_from(usize::from(port) + i).unwrap_or(u16::MAX);
+                        text = text.replace(
+                            &super::simulate::simulated_connection(&scanner.name),
+                            &format!("tcp:{host}:{tcp_port}"),
+                        );
+                    }
+                }
                 let config = Config::parse(&text, Path::new(name))?;
                 let models = super::simulate::emulated_models(&scenario);
                 let scene = Arc::new(Mutex::new(SimulatedScene::new(&scenario)?));

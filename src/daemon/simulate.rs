@@ -324,6 +324,11 @@ fn emulated_model(name: &str, geometry: &ScannerGeometry) -> scip::Model {
     model
 }
 
+/// The placeholder port of a simulated sensor in [`rig_config`].
+pub fn simulated_connection(sensor: &str) -> String {
+    format!("serial:/dev/simulated-{sensor}")
+}
+
 /// The daemon configuration of the simulated rig, as the recording's metadata.
 pub fn rig_config(scenario: &Scenario) -> Result<String, SimulateError> {
     let imu = scenario
@@ -336,8 +341,12 @@ pub fn rig_config(scenario: &Scenario) -> Result<String, SimulateError> {
     );
     for s in &scenario.scanners {
         text.push_str(&format!(
-            "\n[[scanner]]\nname = \"{}\"\nconnection = \"serial:/dev/simulated-{}\"\nrpy_deg = {:?}\ntranslation_m = {:?}\nrange_sigma_m = {:?}\n",
-            s.name, s.name, s.mount_rpy_deg, s.mount_translation_m, s.range_sigma_m
+            "\n[[scanner]]\nname = \"{}\"\nconnection = \"{}\"\nrpy_deg = {:?}\ntranslation_m = {:?}\nrange_sigma_m = {:?}\n",
+            s.name,
+            simulated_connection(&s.name),
+            s.mount_rpy_deg,
+            s.mount_translation_m,
+            s.range_sigma_m
         ));
         if let Some([first, last]) = s.steps {
             text.push_str(&format!("first_step = {first}\nlast_step = {last}\n"));
