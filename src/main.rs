@@ -1,7 +1,7 @@
 //! The `ladar-odometer` command line: thin, everything it does lives in `daemon`.
 
 use clap::{Parser, Subcommand};
-use ladar_odometer::daemon::pipeline::EventCounter;
+use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::replay::{self, ReplayOptions};
 use ladar_odometer::daemon::run::{self, RunOptions};
 use ladar_odometer::daemon::serve;
@@ -161,9 +161,13 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
     runtime()?.block_on(async {
         let cancel = CancellationToken::new();
         tokio::spawn(cancel_on_signal(cancel.clone()));
-        let report = run::run(options, |_, _| EventCounter::default(), cancel)
-            .await
-            .map_err(|e| e.to_string())?;
+        let report = run::run(
+            options,
+            |config, _| FusionEstimator::new(Some(config)),
+            cancel,
+        )
+        .await
+        .map_err(|e| e.to_string())?;
         tracing::info!(
             chunks = report.chunks,
             dropped = report.dropped_chunks,
@@ -189,8 +193,8 @@ fn replay_recording(
         tolerant,
         progress: true,
     };
-    let (summary, _) =
-        replay::replay(&options, |_, _| EventCounter::default()).map_err(|e| e.to_string())?;
+    let (summary, _) = replay::replay(&options, |config, _| FusionEstimator::new(config))
+        .map_err(|e| e.to_string())?;
     print!("{summary}");
     Ok(())
 }

@@ -25,12 +25,14 @@ pub struct Config {
     pub recording: RecordingConfig,
     #[serde(default)]
     pub output: OutputConfig,
-    // ---- Sections owned by the geometry core, integrity and the filter. Each type must
-    // implement Debug + Clone + Deserialize + Default (with deny_unknown_fields); add one line
-    // per section, and call their own checks from `Config::validate` if they have any:
-    // #[serde(default)] pub odometry: crate::odometry::OdometryConfig,
-    // #[serde(default)] pub integrity: crate::integrity::IntegrityConfig,
-    // #[serde(default)] pub filter: crate::filter::FilterConfig,
+    #[serde(default)]
+    pub fusion: crate::fusion::FusionConfig,
+    #[serde(default)]
+    pub odometry: crate::odometry::OdometryConfig,
+    #[serde(default)]
+    pub integrity: crate::integrity::IntegrityConfig,
+    #[serde(default)]
+    pub filter: crate::filter::FilterConfig,
 }
 
 /// How to reach a sensor: `serial:/dev/hokuyo_front`, `serial:/dev/xsens:115200` or
@@ -372,6 +374,8 @@ pub enum ConfigError {
         key: String,
         problem: String,
     },
+    #[error("config {path}: {problem}")]
+    Section { path: PathBuf, problem: String },
 }
 
 /// Every problem found in one file, one line each.
@@ -459,6 +463,20 @@ impl Config {
         if self.recording.path.is_empty() {
             p.add("recording.path", "empty: give a directory or \"off\"");
         }
+        validate_fusion(self, p);
+    }
+
+    /// The `[fusion]`, `[odometry]`, `[integrity]` and `[filter]` tables, with the IMU mount
+    /// taken from `[imu]` so that it is set in one place only.
+    pub fn fusion_settings(&self) -> crate::fusion::FusionSettings {
+        let mut filter = self.filter.clone();
+        filter.imu_mount_rpy_deg = self.imu.rpy_deg;
+        crate::fusion::FusionSettings {
+            fusion: self.fusion.clone(),
+            odometry: self.odometry.clone(),
+            integrity: self.integrity.clone(),
+            filter,
+        }
     }
 }
 
@@ -473,6 +491,14 @@ impl Problems<'_> {
             path: self.path.to_path_buf(),
             key: key.to_string(),
             problem: problem.to_string(),
+        });
+    }
+
+    /// A problem whose message already names its key (the core sections' own checks).
+    fn add_line(&mut self, line: String) {
+        self.errors.push(ConfigError::Section {
+            path: self.path.to_path_buf(),
+            problem: line,
         });
     }
 
@@ -505,6 +531,18 @@ fn valid_name(name: &str) -> bool {
         && name
             .chars()
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+fn validate_fusion(config: &Config, p: &mut Problems<'_>) {
+    if config.filter.imu_mount_rpy_deg != [0.0; 3] {
+        p.add(
+            "filter.imu_mount_rpy_deg",
+            "the IMU mount is set in [imu] rpy_deg: remove this key",
+        );
+    }
+    if let Err(error) = config.fusion_settings().validate() {
+        p.add_line(error.to_string());
+    }
 }
 
 fn validate_mount(key: &str, rpy_deg: &[f64; 3], translation_m: &[f64; 3], p: &mut Problems<'_>) {

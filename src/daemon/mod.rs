@@ -8,6 +8,7 @@
 
 pub mod chunk_queue;
 pub mod config;
+pub mod fusion_estimator;
 pub mod in_process;
 pub mod link;
 pub mod mavlink_out;

@@ -1,0 +1,144 @@
+//! The real estimator behind `run` and `replay`: the pure `Fusion`, built once both scanners
+//! have reported their geometry (their PP replies), since the odometer needs it.
+
+use super::config::Config;
+use super::pipeline::{EpochCounts, Estimator};
+use crate::estimate::{Estimate, IntegrityStatus};
+use crate::fusion::{EpochRecord, Fusion, FusionSettings, Sensor};
+use crate::odometry::ScannerSetup;
+use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
+
+/// What the fusion needs from the configuration for one scanner, geometry aside.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct ScannerMount {
+    mount: Mount,
+    range_sigma_m: f64,
+}
+
+pub struct FusionEstimator {
+    settings: FusionSettings,
+    mounts: [ScannerMount; 2],
+    /// Sensor number of the IMU: scanners come first (`pipeline::sensor_specs`).
+    imu_sensor: usize,
+    geometries: [Option<ScannerGeometry>; 2],
+    fusion: Option<Fusion>,
+    /// Samples and scans that arrived before both geometries were known.
+    pub waiting_for_geometry: u64,
+    /// Geometries the fusion refused (already validated at start-up, so a device reporting
+    /// nonsense in its PP reply).
+    pub refused_geometries: u64,
+}
+
+impl FusionEstimator {
+    /// The first two `[[scanner]]` sections are the fusion's scanners 0 and 1. Without a
+    /// configuration (a raw dump of one port) the defaults apply and mounts are identity.
+    pub fn new(config: Option<&Config>) -> Self {
+        let settings = config.map(Config::fusion_settings).unwrap_or_default();
+        let mount = |k: usize| {
+            let scanner = config.and_then(|c| c.scanners.get(k));
+            ScannerMount {
+                mount: scanner.map_or_else(Mount::identity, |s| s.mount()),
+                range_sigma_m: scanner.map_or(settings.odometry.range_sigma_m, |s| s.range_sigma_m),
+            }
+        };
+        Self {
+            mounts: [mount(0), mount(1)],
+            imu_sensor: config.map_or(usize::MAX, |c| c.scanners.len()),
+            settings,
+            geometries: [None, None],
+            fusion: None,
+            waiting_for_geometry: 0,
+            refused_geometries: 0,
+        }
+    }
+
+    pub fn fusion(&self) -> Option<&Fusion> {
+        self.fusion.as_ref()
+    }
+
+    fn setup(&self, scanner: usize, geometry: ScannerGeometry) -> ScannerSetup {
+        ScannerSetup {
+            geometry,
+            mount: self.mounts[scanner].mount,
+            range_sigma_m: Some(self.mounts[scanner].range_sigma_m),
+        }
+    }
+
+    fn build_when_complete(&mut self) {
+        let [Some(first), Some(second)] = self.geometries else {
+            return;
+        };
+        let setups = [self.setup(0, first), self.setup(1, second)];
+        match Fusion::new(self.settings.clone(), setups) {
+            Ok(fusion) => self.fusion = Some(fusion),
+            Err(error) => {
+                self.refused_geometries += 1;
+                tracing::error!(%error, "cannot start the fusion with the scanners' geometry");
+            }
+        }
+    }
+}
+
+impl Estimator for FusionEstimator {
+    type Epoch = EpochRecord;
+
+    fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
+        if scanner >= 2 {
+            return;
+        }
+        self.geometries[scanner] = Some(geometry);
+        let setup = self.setup(scanner, geometry);
+        match self.fusion.as_mut() {
+            Some(fusion) => {
+                if let Err(error) = fusion.set_scanner(scanner, setup) {
+                    self.refused_geometries += 1;
+                    tracing::error!(%error, scanner, "scanner geometry refused");
+                }
+            }
+            None => self.build_when_complete(),
+        }
+    }
+
+    fn imu(&mut self, sample: ImuSample) -> Option<Estimate> {
+        match self.fusion.as_mut() {
+            Some(fusion) => fusion.push_imu(sample),
+            None => {
+                self.waiting_for_geometry += 1;
+                None
+            }
+        }
+    }
+
+    fn scan(&mut self, scan: Scan) -> Option<EpochRecord> {
+        match self.fusion.as_mut() {
+            Some(fusion) => fusion.push_scan(scan),
+            None => {
+                self.waiting_for_geometry += 1;
+                None
+            }
+        }
+    }
+
+    fn sensor_stale(&mut self, sensor: usize, stale: bool, _t: f64) {
+        let Some(fusion) = self.fusion.as_mut() else {
+            return;
+        };
+        let which = if sensor == self.imu_sensor {
+            Sensor::Imu
+        } else {
+            Sensor::Scanner(sensor)
+        };
+        fusion.mark_stale(which, stale);
+    }
+
+    fn epoch_counts(epoch: &EpochRecord) -> EpochCounts {
+        EpochCounts {
+            planes: epoch.planes,
+            detected: matches!(
+                epoch.status,
+                Some(IntegrityStatus::Excluded { .. } | IntegrityStatus::DetectedNotIsolable)
+            ),
+            excluded: epoch.excluded_planes.len(),
+        }
+    }
+}
