@@ -13,3 +13,4 @@ pub mod integrity;
 pub mod odometry;
 pub mod sensors;
 pub mod sim;
+pub mod study;

@@ -290,10 +290,21 @@ pub fn test_system(
     let tests = statistics.iter().filter(|(plane, _)| plane.dof > 0).count();
     let planes: Vec<PlaneTest> = statistics
         .into_iter()
-        .map(|(plane, weakest)| with_thresholds(plane, weakest, thresholds, tests))
+        .map(|(plane, weakest)| {
+            let gamma = if redundancy == 1 {
+                thresholds.sole()
+            } else {
+                thresholds.per_plane(plane.dof, tests)
+            };
+            with_threshold(plane, weakest, thresholds, gamma)
+        })
         .collect();
     let chi_square = space.parity.norm_squared();
-    let chi_square_threshold = thresholds.global(redundancy);
+    let chi_square_threshold = if redundancy == 1 {
+        thresholds.sole().powi(2)
+    } else {
+        thresholds.global(redundancy)
+    };
     let residuals = &system.y - &system.h * (&space.gain * &system.y);
     let detected = chi_square > chi_square_threshold || planes.iter().any(PlaneTest::fired);
     let estimate_sigmas: [f64; 3] = space.covariance.diagonal().map(f64::sqrt).into();
@@ -377,14 +388,16 @@ fn symmetric_eigen_2(m: &[[f64; 2]; 2], d: usize) -> ([f64; 2], [[f64; 2]; 2]) {
     ([mean + radius, mean - radius], [[cos, sin], [-sin, cos]])
 }
 
-fn with_thresholds(
+/// The plane's threshold `gamma` (kept infinite when nothing of the plane is testable) and
+/// the MDB it gives.
+fn with_threshold(
     mut plane: PlaneTest,
     weakest_root: f64,
     thresholds: &Thresholds,
-    tests: usize,
+    gamma: f64,
 ) -> PlaneTest {
     if plane.dof > 0 {
-        plane.threshold = thresholds.per_plane(plane.dof, tests);
+        plane.threshold = gamma;
     }
     if weakest_root > 0.0 {
         plane.mdb = (plane.threshold + thresholds.missed_detection_quantile) / weakest_root;

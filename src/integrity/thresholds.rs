@@ -6,6 +6,11 @@
 //! half is shared equally by the `n` per-plane tests, each at `P / (2 n)`. By the union bound the
 //! scope is flagged with probability at most `P` when nothing is wrong; because the tests are
 //! strongly correlated the actual rate lies between `P / 2` and `P`.
+//!
+//! Exception: a parity space of one dimension. Then the global test and every plane's test are
+//! the same statistic `|p|` (each plane sees the one parity component), so splitting the budget
+//! would spend it `n + 1` times on one event and the scope would be flagged with probability
+//! only `P / (2 n)`; that single test gets the whole budget `P` instead ([`Thresholds::sole`]).
 
 use statrs::function::erf::erfc_inv;
 use statrs::function::gamma::{gamma_ur, ln_gamma};
@@ -26,6 +31,8 @@ pub struct Thresholds {
     /// MDB size stays inside it with probability at least `1 - Pmd`.
     pub noise_quantile: f64,
     global: Vec<f64>,
+    /// Threshold on `|p|` when the parity space has one dimension.
+    sole: f64,
     /// Per-plane thresholds for one and two rows, by number of tests.
     per_plane: [Vec<f64>; 2],
 }
@@ -46,6 +53,7 @@ impl Thresholds {
             missed_detection_quantile: normal_upper_quantile(missed_detection),
             noise_quantile: normal_upper_quantile(missed_detection / 2.0),
             global,
+            sole: normal_upper_quantile(false_alarm / 2.0),
         }
     }
 
@@ -55,6 +63,12 @@ impl Thresholds {
             Some(&threshold) => threshold,
             None => chi_square_upper_quantile(dof, self.false_alarm / 2.0),
         }
+    }
+
+    /// Threshold on `|p|`, the global test and every plane's test at once, when the parity
+    /// space has one dimension: the whole scope budget, two-sided.
+    pub fn sole(&self) -> f64 {
+        self.sole
     }
 
     /// Threshold (eq 39's gamma) on one plane's normalised residual, the square root of its
@@ -179,6 +193,14 @@ mod tests {
                 assert!(close(back, alpha, 1e-9), "dof {dof} alpha {alpha}: {back}");
             }
         }
+    }
+
+    #[test]
+    fn one_parity_dimension_spends_the_whole_budget_on_its_one_test() {
+        let t = Thresholds::new(1e-3, 1e-3);
+        assert!(close(t.sole(), normal_upper_quantile(5e-4), 1e-12));
+        assert!(t.sole() < t.per_plane(1, 4));
+        assert!(t.sole().powi(2) < t.global(1));
     }
 
     #[test]

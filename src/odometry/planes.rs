@@ -1,10 +1,15 @@
 //! Plane extraction (paper section 3.1, eqs 8-9): a line of one scanner plus the centre of a
 //! coplanar line of the other. The normal is the smallest eigenvector of V^T V (the SVD of eq
 //! 8), the distance the mean of eq 9 over the first line. Each line serves one plane at most.
+//! Where eq 8 degenerates (the second line's centre on or near the first line, as on a wall
+//! beside two co-located scanners pitched about one axis), two lines that cross still define
+//! the plane, fitted to all their points.
 
 use super::deskew::Beam;
 use super::lines::Segment;
-use super::uncertainty::{plane_uncertainty, LineSample, PlaneUncertainty};
+use super::uncertainty::{
+    joint_plane_uncertainty, plane_uncertainty, LineSample, PlaneUncertainty,
+};
 use nalgebra::{SymmetricEigen, Vector3};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -148,7 +153,7 @@ fn plane_from_pair(
     let rough = s1.direction.cross(&v0);
     let separation = rough.norm();
     if separation < parameters.min_separation_m {
-        return None;
+        return plane_from_crossing_lines(&line1, &line2, pair, parameters);
     }
     if !passes_rough_coplanarity(
         &line1,
@@ -173,7 +178,7 @@ fn plane_from_pair(
     let uncertainty = plane_uncertainty(&line1, &line2, &normal);
     let sigma_normal = uncertainty.sigma_normal;
     if sigma_normal.is_nan() || sigma_normal > parameters.max_sigma_normal_rad {
-        return None;
+        return plane_from_crossing_lines(&line1, &line2, pair, parameters);
     }
     let tilt_gate = parameters.coplanarity_gate_sigmas * slope_sigma(&line2, &uncertainty);
     if s2.direction.dot(&normal).abs() > tilt_gate {
@@ -192,6 +197,71 @@ fn plane_from_pair(
         crossing,
         confirmed: false,
     })
+}
+
+/// Lines crossing at less than this (sine of the angle) are too close to parallel to define a
+/// plane by their directions alone.
+const MIN_CROSSING_SINE: f64 = 0.17;
+
+/// Eq 8 needs the second line's centre off the first line. Two co-located scanners pitched
+/// about one axis both scan the point where that axis meets a wall, so on a wall beside them
+/// their lines cross at (nearly) their centres. Two crossing lines still define the plane: it is
+/// fitted to all their points, and each line must lie in it within its noise.
+fn plane_from_crossing_lines(
+    line1: &LineSample,
+    line2: &LineSample,
+    pair: [LineRef; 2],
+    parameters: &PlaneParameters,
+) -> Option<Plane> {
+    let (s1, s2) = (line1.segment, line2.segment);
+    if s1.direction.cross(&s2.direction).norm() < MIN_CROSSING_SINE {
+        return None;
+    }
+    let (l1, l2) = (s1.points() as f64, s2.points() as f64);
+    let centre = (s1.centroid * l1 + s2.centroid * l2) / (l1 + l2);
+    let (d1, d2) = (s1.centroid - centre, s2.centroid - centre);
+    let scatter = s1.scatter + d1 * d1.transpose() * l1 + s2.scatter + d2 * d2.transpose() * l2;
+    let eigen = SymmetricEigen::new(scatter);
+    let mut normal: Vector3<f64> = eigen
+        .eigenvectors
+        .column(eigen.eigenvalues.imin())
+        .into_owned();
+    let mut rho = centre.dot(&normal);
+    if rho < 0.0 {
+        normal = -normal;
+        rho = -rho;
+    }
+    let uncertainty = joint_plane_uncertainty(line1, line2, &normal, &centre);
+    if uncertainty.sigma_normal.is_nan()
+        || uncertainty.sigma_normal > parameters.max_sigma_normal_rad
+    {
+        return None;
+    }
+    let plane = Plane {
+        id: 0,
+        normal,
+        rho,
+        uncertainty,
+        lines: pair,
+        crossing: true,
+        confirmed: false,
+    };
+    [line1, line2]
+        .iter()
+        .all(|line| lies_in(&plane, line, parameters.coplanarity_gate_sigmas))
+        .then_some(plane)
+}
+
+/// Whether a line lies in a plane within `gate` sigmas, in offset and in tilt.
+fn lies_in(plane: &Plane, line: &LineSample, gate: f64) -> bool {
+    let s = line.segment;
+    let offset = s.centroid.dot(&plane.normal) - plane.rho;
+    let lever = s.centroid - plane.normal * plane.rho;
+    let offset_variance = line.range_sigma.powi(2) / s.points() as f64
+        + plane.uncertainty.sigma_rho.powi(2)
+        + lever.dot(&(plane.uncertainty.normal_covariance * lever));
+    offset.abs() <= gate * offset_variance.sqrt()
+        && s.direction.dot(&plane.normal).abs() <= gate * slope_sigma(line, &plane.uncertainty)
 }
 
 /// Cheap pre-test with the normal `d1 x v0` and a generous gate, so that only plausible pairs
@@ -228,16 +298,7 @@ fn has_third_line(plane: &Plane, scans: &[ScanLines; 2], parameters: &PlaneParam
             if plane.lines.contains(&here) {
                 return false;
             }
-            let line = scan.sample(segment);
-            let s = line.segment;
-            let offset = s.centroid.dot(&plane.normal) - plane.rho;
-            let lever = s.centroid - plane.normal * plane.rho;
-            let offset_variance = line.range_sigma.powi(2) / s.points() as f64
-                + plane.uncertainty.sigma_rho.powi(2)
-                + lever.dot(&(plane.uncertainty.normal_covariance * lever));
-            let tilt_sigma = slope_sigma(&line, &plane.uncertainty);
-            offset.abs() <= gate * offset_variance.sqrt()
-                && s.direction.dot(&plane.normal).abs() <= gate * tilt_sigma
+            lies_in(plane, &scan.sample(segment), gate)
         })
     })
 }

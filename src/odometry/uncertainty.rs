@@ -50,6 +50,49 @@ impl LineSample<'_> {
     }
 }
 
+/// Propagates the ranging noise into a plane fitted to every point of two crossing lines whose
+/// centres nearly coincide (where eq 8, which uses only the second line's centre, degenerates).
+/// The plane's height over the true one is `c + g . u` at in-plane offset `u` from the joint
+/// centroid `centre`; `(c, g)` is the least-squares fit of the points' offsets, so its
+/// covariance is `A^-1 B A^-1` with `A = sum x x^T`, `B = sum var_k x x^T`, `x = [1, u]`.
+/// Then `delta n = -g` (in the tangent basis) and `delta rho = c + centre . delta n`.
+pub fn joint_plane_uncertainty(
+    line1: &LineSample,
+    line2: &LineSample,
+    n: &Vector3<f64>,
+    centre: &Vector3<f64>,
+) -> PlaneUncertainty {
+    let basis = super::tangent_basis(n);
+    let (a, b) = (basis.column(0).into_owned(), basis.column(1).into_owned());
+    let mut design = Matrix3::zeros();
+    let mut noise = Matrix3::zeros();
+    for line in [line1, line2] {
+        for beam in line.beams() {
+            let offset = beam.body - centre;
+            let x = Vector3::new(1.0, a.dot(&offset), b.dot(&offset));
+            let outer = x * x.transpose();
+            design += outer;
+            noise += outer * line.offset_variance(beam, n);
+        }
+    }
+    let Some(inverse) = design.try_inverse() else {
+        return PlaneUncertainty {
+            normal_covariance: Matrix3::from_element(f64::NAN),
+            sigma_normal: f64::NAN,
+            sigma_rho: f64::NAN,
+        };
+    };
+    let plane = inverse * noise * inverse;
+    let tilts = plane.fixed_view::<2, 2>(1, 1).into_owned();
+    let normal_covariance = basis * tilts * basis.transpose();
+    let rho_gradient = Vector3::new(1.0, -a.dot(centre), -b.dot(centre));
+    PlaneUncertainty {
+        normal_covariance,
+        sigma_normal: normal_covariance.trace().sqrt(),
+        sigma_rho: rho_gradient.dot(&(plane * rho_gradient)).sqrt(),
+    }
+}
+
 /// Propagates the ranging noise of both lines into the plane `(n, rho = p0 . n)`.
 pub fn plane_uncertainty(
     line1: &LineSample,
