@@ -3,6 +3,7 @@
 //! prior centred on the truth, and both solves compared with the true relative pose. No filter,
 //! no integrity: this checks that the core's covariances are honest on realistic scenes.
 
+use ladar_odometer::integrity::{IntegrityConfig, IntegrityMonitor};
 use ladar_odometer::odometry::{OdometryConfig, RelativePose};
 use ladar_odometer::sim::Scenario;
 use ladar_odometer::study::Rig;
@@ -21,6 +22,10 @@ struct Summary {
     max_rotation_mrad: f64,
     max_displacement_mm: f64,
     mean_planes: f64,
+    /// Solved pairs the integrity monitor (default settings) lets through as usable, and of
+    /// those the ones beyond the 99.9 % point: what would reach a filter.
+    usable: usize,
+    usable_beyond_999: usize,
 }
 
 /// Consecutive scan epochs of a scenario in `[from_s, to_s)`, each pair solved and scored.
@@ -37,6 +42,7 @@ fn consecutive(name: &str, from_s: f64, to_s: f64, config: OdometryConfig) -> Su
 
 /// Solves the pair of epochs starting at each `[t_i, t_j]` (fresh noise every capture).
 fn score(label: &str, rig: &mut Rig, times: &[[f64; 2]]) -> Summary {
+    let monitor = IntegrityMonitor::new(IntegrityConfig::default()).unwrap();
     let mut summary = Summary::default();
     let mut nees_sum = 0.0;
     let mut planes = 0;
@@ -77,6 +83,20 @@ fn score(label: &str, rig: &mut Rig, times: &[[f64; 2]]) -> Summary {
                 summary.solved += 1;
                 nees_sum += nees;
                 summary.beyond_999 += usize::from(nees > NEES_999);
+                let odometer = &rig.odometer;
+                let resolve = |excluded: &[usize]| {
+                    odometer.resolve(&previous.planes, &current.planes, &epoch, excluded)
+                };
+                let report = monitor.check_epoch(
+                    epoch.rotation.clone(),
+                    epoch.displacement.clone(),
+                    &mut |excluded| resolve(excluded).rotation,
+                    &mut |excluded| resolve(excluded).displacement,
+                );
+                if report.status.usable() && report.excluded.is_empty() {
+                    summary.usable += 1;
+                    summary.usable_beyond_999 += usize::from(nees > NEES_999);
+                }
                 summary.max_rotation_mrad =
                     summary.max_rotation_mrad.max(rotation_error.norm() * 1e3);
                 summary.max_displacement_mm = summary

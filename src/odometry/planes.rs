@@ -1,6 +1,9 @@
 //! Plane extraction (paper section 3.1, eqs 8-9): a line of one scanner plus the centre of a
 //! coplanar line of the other. The normal is the smallest eigenvector of V^T V (the SVD of eq
 //! 8), the distance the mean of eq 9 over the first line. Each line serves one plane at most.
+//! Where eq 8 degenerates (the second line's centre on or near the first line, as on a wall
+//! beside two co-located scanners pitched about one axis), two lines that cross still define
+//! the plane, fitted to all their points.
 
 use super::deskew::Beam;
 use super::lines::Segment;

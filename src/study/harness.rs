@@ -38,11 +38,6 @@ impl LabelledEpoch {
     pub fn on_patch(&self, k: usize, patch: usize) -> bool {
         self.labels[k] == [Some(patch), Some(patch)]
     }
-
-    /// Whether either line of plane `k` is on patch `patch`.
-    pub fn touches(&self, k: usize, patch: usize) -> bool {
-        self.labels[k].contains(&Some(patch))
-    }
 }
 
 /// A fault staged on one patch between the two epochs of a pair.
