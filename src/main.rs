@@ -57,6 +57,26 @@ enum Command {
         #[arg(long, value_name = "FILE.mcap")]
         out: PathBuf,
     },
+    /// Monte Carlo study of the integrity monitor on a scenario or your own rig's scenario file:
+    /// predicted vs measured sigma per plane, false-alarm rate, detection rate against bias
+    /// size, minimum detectable biases. This is how to choose thresholds for a mount.
+    IntegrityCheck {
+        #[arg(long, value_name = "NAME|FILE", default_value = "paper-sim")]
+        scenario: String,
+        #[arg(long, default_value_t = 1000)]
+        runs: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print JSON instead of tables.
+        #[arg(long)]
+        json: bool,
+        /// Configured false-alarm probability (integrity.false_alarm_probability).
+        #[arg(long, value_name = "P")]
+        false_alarm_probability: Option<f64>,
+        /// Configured missed-detection probability (integrity.missed_detection_probability).
+        #[arg(long, value_name = "P")]
+        missed_detection_probability: Option<f64>,
+    },
     /// Serve emulated sensors (SCIP and Xbus on ptys, SCIP on TCP where the configuration says
     /// tcp:) in real time, so that `run` can be exercised with no hardware.
     ServeEmulators {
@@ -103,6 +123,21 @@ fn main() -> ExitCode {
             tolerant,
         } => replay_recording(recording, out, realtime, mavlink, tolerant),
         Command::Simulate { scenario, out } => simulate(&scenario, &out),
+        Command::IntegrityCheck {
+            scenario,
+            runs,
+            seed,
+            json,
+            false_alarm_probability,
+            missed_detection_probability,
+        } => integrity_check(
+            scenario,
+            runs,
+            seed,
+            json,
+            false_alarm_probability,
+            missed_detection_probability,
+        ),
         Command::ServeEmulators {
             config,
             scenario,
@@ -211,6 +246,34 @@ fn simulate(scenario: &str, out: &std::path::Path) -> Result<(), String> {
         summary.truth_samples,
         summary.chunks
     );
+    Ok(())
+}
+
+fn integrity_check(
+    scenario: String,
+    runs: usize,
+    seed: u64,
+    json: bool,
+    false_alarm_probability: Option<f64>,
+    missed_detection_probability: Option<f64>,
+) -> Result<(), String> {
+    use ladar_odometer::study::{integrity_check, IntegrityCheckArgs};
+    let mut args = IntegrityCheckArgs {
+        scenario,
+        runs,
+        seed,
+        json,
+        ..IntegrityCheckArgs::default()
+    };
+    if let Some(p) = false_alarm_probability {
+        args.integrity.false_alarm_probability = p;
+    }
+    if let Some(p) = missed_detection_probability {
+        args.integrity.missed_detection_probability = p;
+    }
+    args.integrity.validate().map_err(|e| e.to_string())?;
+    let report = integrity_check(&args).map_err(|e| e.to_string())?;
+    println!("{}", report.render(json));
     Ok(())
 }
 
