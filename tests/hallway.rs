@@ -90,10 +90,15 @@ fn short_rolled_hover_stays_accurate_and_never_fuses_a_detected_fault() {
     })
     .unwrap();
     println!("{}", serde_json::to_string(&report).unwrap());
-    // The first 30 s of motion: y velocity still settling (0.04 m/s here, 0.02 over 500 s).
-    assert_within(&report, [0.03, 0.05, 0.01], [2.0, 2.0, 2.0], 0.3);
+    // The first 30 s of motion: pitch still settling (2.0 mrad here, 0.8 over 500 s).
+    assert_within(&report, [0.015, 0.01, 0.005], [2.0, 3.0, 2.0], 0.1);
     assert!(report.epochs.fused >= 50, "{:?}", report.epochs);
-    assert!(report.nees_mean < 30.0, "NEES {}", report.nees_mean);
+    assert!(
+        report.nees_mean <= report.nees_interval[1],
+        "NEES {} above {:?}",
+        report.nees_mean,
+        report.nees_interval
+    );
     for record in &records {
         if record.status == Some(IntegrityStatus::DetectedNotIsolable) {
             assert!(
