@@ -68,10 +68,17 @@ fn assert_within(report: &AccuracyReport, velocity: [f64; 3], attitude: [f64; 3]
     );
 }
 
-/// The targets (paper: [0.058 0.026 0.032] m/s, [3 2 5] mrad, ~10 m), except yaw: its
-/// 3 mrad is not met (docs/accuracy.md), so yaw is held to the paper's 5 mrad plus 20 %.
+/// The targets (paper: [0.058 0.026 0.032] m/s, [3 2 5] mrad, ~10 m), and a NEES no
+/// worse than conservative: the filter may overstate its uncertainty (unobserved yaw), never
+/// understate it.
 fn assert_targets(report: &AccuracyReport) {
-    assert_within(report, [0.03, 0.02, 0.02], [2.0, 2.0, 6.0], 2.0);
+    assert_within(report, [0.03, 0.02, 0.02], [2.0, 2.0, 3.0], 2.0);
+    assert!(
+        report.nees_mean <= report.nees_interval[1],
+        "NEES {} above {:?}",
+        report.nees_mean,
+        report.nees_interval
+    );
 }
 
 #[test]
@@ -83,10 +90,15 @@ fn short_rolled_hover_stays_accurate_and_never_fuses_a_detected_fault() {
     })
     .unwrap();
     println!("{}", serde_json::to_string(&report).unwrap());
-    // The first 30 s of motion: y velocity still settling (0.04 m/s here, 0.02 over 500 s).
-    assert_within(&report, [0.03, 0.05, 0.01], [2.0, 2.0, 2.0], 0.3);
+    // The first 30 s of motion: pitch still settling (2.0 mrad here, 0.8 over 500 s).
+    assert_within(&report, [0.015, 0.01, 0.005], [2.0, 3.0, 2.0], 0.1);
     assert!(report.epochs.fused >= 50, "{:?}", report.epochs);
-    assert!(report.nees_mean < 30.0, "NEES {}", report.nees_mean);
+    assert!(
+        report.nees_mean <= report.nees_interval[1],
+        "NEES {} above {:?}",
+        report.nees_mean,
+        report.nees_interval
+    );
     for record in &records {
         if record.status == Some(IntegrityStatus::DetectedNotIsolable) {
             assert!(
@@ -109,6 +121,18 @@ fn hover_500s_1hz_stock() {
         "hallway-hover 1 Hz stock",
         &scenario("hallway-hover", None, false, None),
         &settings(40.0),
+    );
+}
+
+#[test]
+#[ignore]
+fn hover_500s_10hz_stock() {
+    let mut settings = settings(40.0);
+    settings.fusion.epoch_rate_hz = 10.0;
+    run(
+        "hallway-hover 10 Hz stock",
+        &scenario("hallway-hover", None, false, Some(3)),
+        &settings,
     );
 }
 
@@ -152,11 +176,12 @@ fn hover_500s_1hz_rolled_velocity_update() {
 fn hover_500s_10hz_rolled() {
     let mut settings = settings(40.0);
     settings.fusion.epoch_rate_hz = 10.0;
-    run(
+    let report = run(
         "hallway-hover 10 Hz rolled",
         &scenario("hallway-hover", None, true, Some(3)),
         &settings,
     );
+    assert_targets(&report);
 }
 
 #[test]

@@ -570,6 +570,11 @@ impl Eskf {
                 ..report
             });
         }
+        // The stored poses were propagated from the state before the correction: move them
+        // with it, so motion read from the history (deskew, priors, epoch bridges) is the
+        // IMU's alone and never contains the correction itself.
+        self.history
+            .correct(&(next.p - self.state.p), &(next.q * self.state.q.inverse()));
         self.state = next;
         self.covariance = covariance;
         self.replace_latest_pose(t);

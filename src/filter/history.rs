@@ -41,6 +41,19 @@ impl PoseHistory {
         self.poses.pop_back();
     }
 
+    /// Applies a measurement update's correction to every stored pose: `rotation` (NED) turns
+    /// each attitude and the positions about the newest pose, then `shift` moves them all, so
+    /// the newest lands on the corrected state and relative motion is kept.
+    pub fn correct(&mut self, shift: &Vector3<f64>, rotation: &UnitQuaternion<f64>) {
+        let Some(anchor) = self.poses.back().map(|pose| pose.p) else {
+            return;
+        };
+        for pose in &mut self.poses {
+            pose.p = anchor + rotation * (pose.p - anchor) + shift;
+            pose.q = rotation * pose.q;
+        }
+    }
+
     /// Time span covered, oldest to newest.
     pub fn span(&self) -> Option<(f64, f64)> {
         Some((self.poses.front()?.t, self.poses.back()?.t))
@@ -91,5 +104,33 @@ mod tests {
         assert!(history.pose_at(0.5).is_none());
         assert!(history.pose_at(3.1).is_none());
         assert!(history.pose_at(f64::NAN).is_none());
+    }
+
+    #[test]
+    fn a_correction_moves_every_pose_and_keeps_the_relative_motion() {
+        let mut history = PoseHistory::with_capacity(4);
+        for k in 0..3 {
+            let t = k as f64;
+            history.push(Pose {
+                t,
+                p: Vector3::new(t, 0.5 * t, 0.0),
+                q: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.1 * t),
+            });
+        }
+        let relative = |h: &PoseHistory| {
+            let (a, b) = (h.pose_at(0.5).unwrap(), h.pose_at(2.0).unwrap());
+            (a.q.inverse() * b.q, a.q.inverse() * (b.p - a.p))
+        };
+        let before = relative(&history);
+        let shift = Vector3::new(0.01, -0.02, 0.005);
+        let turn = UnitQuaternion::from_euler_angles(0.001, -0.002, 0.003);
+        let newest = history.pose_at(2.0).unwrap();
+        history.correct(&shift, &turn);
+        let corrected = history.pose_at(2.0).unwrap();
+        assert!((corrected.p - (newest.p + shift)).norm() < 1e-12);
+        assert!((corrected.q.angle_to(&(turn * newest.q))) < 1e-12);
+        let after = relative(&history);
+        assert!(before.0.angle_to(&after.0) < 1e-12);
+        assert!((before.1 - after.1).norm() < 1e-12);
     }
 }

@@ -83,49 +83,38 @@ impl Fusion {
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
         let cleared = self.clear(&epoch, &report, anchored.as_ref());
-        record.matched = epoch.matches.len();
-        record.excluded_planes = cleared
-            .excluded
-            .iter()
-            .filter_map(|&k| epoch.matches.get(k))
-            .map(|m| current.planes[m.current].id)
-            .collect();
-        record.used = record.matched - record.excluded_planes.len();
-        record.unobservable_displacement = anchored
-            .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
-            .unwrap_or_default();
-        self.integrity = Some(report.status.clone());
-        record.status = Some(report.status.clone());
-        record.integrity = Some(report);
         let measurement = measurement(
             previous.t_ref,
             current.t_ref,
             &cleared,
             self.config.measurement_covariance_scale,
         );
+        self.integrity = Some(report.status.clone());
+        describe_solve(record, current, &epoch, &cleared, anchored.as_ref(), report);
         record.rotation = measurement
             .rotation
             .map(|r| WithCovariance::new(&r.rotation_vector, &r.covariance));
         record.displacement = measurement
             .translation
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
+        (record.outcome, record.update) = self.fuse(&measurement);
+    }
+
+    /// Hands the cleared relative pose to the filter, if anything was cleared.
+    fn fuse(&mut self, measurement: &FilterRelativePose) -> (EpochOutcome, Option<UpdateSummary>) {
         if measurement.rotation.is_none() && measurement.translation.is_none() {
-            record.outcome = EpochOutcome::NotFused;
-            return;
+            return (EpochOutcome::NotFused, None);
         }
-        record.outcome = match self.filter.update_relative_pose(&measurement) {
-            Ok(update) => {
-                record.update = Some(UpdateSummary::from(&update));
-                if update.accepted {
-                    EpochOutcome::Fused
-                } else {
-                    EpochOutcome::RejectedByGate
-                }
-            }
-            Err(error) => EpochOutcome::UpdateFailed {
-                reason: error.to_string(),
-            },
-        };
+        match self.filter.update_relative_pose(measurement) {
+            Ok(update) if update.accepted => (EpochOutcome::Fused, Some((&update).into())),
+            Ok(update) => (EpochOutcome::RejectedByGate, Some((&update).into())),
+            Err(error) => (
+                EpochOutcome::UpdateFailed {
+                    reason: error.to_string(),
+                },
+                None,
+            ),
+        }
     }
 
     fn check_integrity(
@@ -222,6 +211,31 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelat
         rotation,
         translation,
     }
+}
+
+/// Matches, exclusions, anchored directions and the integrity evidence of a solved epoch.
+fn describe_solve(
+    record: &mut EpochRecord,
+    current: &EpochPlanes,
+    epoch: &OdometryEpoch,
+    cleared: &Cleared,
+    anchored: Option<&Anchored>,
+    report: EpochReport,
+) {
+    record.matched = epoch.matches.len();
+    // Anchors sit after the real matches and have no plane id.
+    record.excluded_planes = cleared
+        .excluded
+        .iter()
+        .filter_map(|&k| epoch.matches.get(k))
+        .map(|m| current.planes[m.current].id)
+        .collect();
+    record.used = record.matched - record.excluded_planes.len();
+    record.unobservable_displacement = anchored
+        .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
+        .unwrap_or_default();
+    record.status = Some(report.status.clone());
+    record.integrity = Some(report);
 }
 
 fn symmetric(m: Matrix3<f64>) -> Matrix3<f64> {
