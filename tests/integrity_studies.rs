@@ -3,7 +3,7 @@
 //! `RUNS=10000 cargo test -p ladar-odometer --release --test integrity_studies -- --ignored --nocapture --test-threads 1`
 
 use ladar_odometer::study::{
-    integrity_check, paper_figures, paper_sigma_table, IntegrityCheckArgs, StudyError,
+    door_figures, integrity_check, paper_figures, paper_sigma_table, IntegrityCheckArgs, StudyError,
 };
 
 fn runs_from_env() -> usize {
@@ -126,6 +126,36 @@ fn paper_biases_are_detected_and_a_moved_plane_is_excluded() {
     assert!(rotation.fault_in_solve * 2 >= runs && rotation.rate >= 0.97);
 }
 
+/// office-door (sec 4.2), 5 seeded runs: the rotation test catches the swinging door from the
+/// first 5 deg bin on, and with exclusion the consecutive 1 Hz solutions are honest (97.9 %
+/// within 3 sigma over 100 runs; the 99 % the issue asks is not reached yet, docs/figures.md)
+/// and much better than without it.
+#[test]
+fn office_door_is_caught_by_the_rotation_test_and_exclusion_keeps_errors_honest() {
+    let figures = door_figures(5, 1).unwrap();
+    println!("{figures}");
+    assert!(figures.planes_per_epoch >= 5.0, "{figures}");
+    for bin in figures.bins.iter().filter(|b| b.from_deg >= 5.0) {
+        assert_eq!(bin.detected[1], bin.door_in_solve[1], "{figures}");
+    }
+    assert_eq!(figures.empirical_mdb_deg[1], Some(5.0), "{figures}");
+    let with = &figures.with_exclusion;
+    let without = &figures.without_exclusion;
+    assert!(
+        with.pairs * 10 >= figures.consecutive_pairs * 7,
+        "{figures}"
+    );
+    assert!(
+        with.within_three_sigma * 100 >= with.pairs * 95,
+        "{figures}"
+    );
+    assert!(with.rotation_rms_mrad < 3.0, "{figures}");
+    let fraction = |e: &ladar_odometer::study::ErrorFigures| {
+        e.within_three_sigma as f64 / e.pairs.max(1) as f64
+    };
+    assert!(fraction(without) < fraction(with) - 0.2, "{figures}");
+}
+
 #[test]
 #[ignore]
 fn print_sigma_table() {
@@ -154,8 +184,5 @@ fn print_paper_figures() {
 #[test]
 #[ignore]
 fn print_door_figures() {
-    println!(
-        "{}",
-        ladar_odometer::study::door_figures(runs_from_env(), 1).unwrap()
-    );
+    println!("{}", door_figures(runs_from_env(), 1).unwrap());
 }

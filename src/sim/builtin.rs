@@ -144,23 +144,25 @@ fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     )
 }
 
-/// Sec. 4.2: two URG-04LX on a tripod near the corner of an office, 1.4 m below the ceiling and
-/// 1.2 m above the floor, scan planes raised 35 and 55 deg; the door in the right-hand wall, beside
-/// the scanners (x = -0.45 .. 0.45), swings into the room 0 -> 90 -> 0 deg five times (period 9 s
-/// from t = 2 s).
+/// Sec. 4.2: two URG-04LX (5.6 m, 240 deg) on a tripod near the back-left corner of an office
+/// (left wall y = -1.5, front wall x = 3.5, right wall y = 2.0, floor 1.3 m below, ceiling 1.5 m
+/// above). Each scan plane is tilted both ways (pitch and roll), differently, so both scanners
+/// see the floor, the left, front and right walls (three independent normals besides the door)
+/// and their lines on each cross or lie apart. The door (x = -0.05 .. 0.95) is recessed 0.1 m in
+/// its frame in the right wall, so its lines break from the wall's and it is its own plane even
+/// when closed; hinged at x = 0.95, it swings into the room 0 -> 90 -> 0 deg five times (period
+/// 9 s from t = 2 s). A corridor wall shows through the open doorway.
 pub(crate) fn office_door() -> Scenario {
-    let (ceiling, floor, door_top) = (-1.4, 1.2, -0.8);
-    let door_hinge = [0.45, 2.79];
+    let (ceiling, floor, door_top) = (-1.5, 1.3, -0.95);
+    let (left, right, front, back) = (-1.5, 2.0, 3.5, -2.0);
+    let doorway = [0.0, 0.9];
+    let door_hinge = [0.95, right + 0.1];
     let door = Patch::new(
         "door",
-        tidy([
-            door_hinge[0] - 0.45,
-            door_hinge[1],
-            (door_top + floor) / 2.0,
-        ]),
+        tidy([0.45, door_hinge[1], (door_top + floor) / 2.0]),
         [1.0, 0.0, 0.0],
         [0.0, 0.0, 1.0],
-        tidy([0.45, (floor - door_top) / 2.0]),
+        tidy([0.5, (floor - door_top) / 2.0]),
     )
     .with_motion(Motion::Rotate {
         pivot_m: [door_hinge[0], door_hinge[1], 0.0],
@@ -174,22 +176,40 @@ pub(crate) fn office_door() -> Scenario {
     });
     let scene = Scene {
         patches: vec![
-            wall("front-wall", [2.5, -1.2], [2.5, 2.8], ceiling, floor),
-            wall("left-wall", [-3.0, -1.2], [2.5, -1.2], ceiling, floor),
-            wall("right-wall-rear", [-3.0, 2.8], [-0.45, 2.8], ceiling, floor),
-            wall("right-wall-front", [0.45, 2.8], [2.5, 2.8], ceiling, floor),
-            wall("lintel", [-0.45, 2.8], [0.45, 2.8], ceiling, door_top),
-            wall("back-wall", [-3.0, -1.2], [-3.0, 2.8], ceiling, floor),
-            wall("corridor-wall", [-2.0, 4.3], [2.0, 4.3], ceiling, floor),
-            slab("ceiling", [-3.0, 2.5], [-1.2, 2.8], ceiling),
-            slab("floor", [-3.0, 2.5], [-1.2, 2.8], floor),
+            wall("front-wall", [front, left], [front, right], ceiling, floor),
+            wall("left-wall", [back, left], [front, left], ceiling, floor),
+            wall(
+                "right-wall-rear",
+                [back, right],
+                [doorway[0], right],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "right-wall-front",
+                [doorway[1], right],
+                [front, right],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "lintel",
+                [doorway[0], right],
+                [doorway[1], right],
+                ceiling,
+                door_top,
+            ),
+            wall("back-wall", [back, left], [back, right], ceiling, floor),
+            wall("corridor-wall", [-2.0, 3.5], [3.0, 3.5], ceiling, floor),
+            slab("ceiling", [back, front], [left, right], ceiling),
+            slab("floor", [back, front], [left, right], floor),
             door,
         ],
     };
-    let urg = |name: &str, pitch: f64, z: f64| ScannerConfig {
+    let urg = |name: &str, rpy: [f64; 3], z: f64| ScannerConfig {
         mount_translation_m: [0.0, 0.0, z],
         skip: 2,
-        ..ScannerConfig::new(name, ScannerModel::Urg04lx, [0.0, pitch, 0.0], 0.015)
+        ..ScannerConfig::new(name, ScannerModel::Urg04lx, rpy, 0.015)
     };
     Scenario {
         name: "office-door".into(),
@@ -200,7 +220,12 @@ pub(crate) fn office_door() -> Scenario {
             position_m: [0.0; 3],
             rpy_deg: [0.0; 3],
         },
-        scanners: vec![urg("urg-low", 35.0, 0.03), urg("urg-high", 55.0, -0.03)],
+        // Scan planes z = 0.35 x - 0.35 y (front and left down) and z = 0.1 x + 0.55 y (right
+        // down), 6 cm apart in height.
+        scanners: vec![
+            urg("urg-low", [-18.3, -19.3, 0.0], 0.03),
+            urg("urg-high", [28.7, -5.7, 0.0], -0.03),
+        ],
         imu: None,
         scene,
     }

@@ -1,5 +1,6 @@
-//! The paper's sec. 4.2 on office-door: a stationary pair of URG-04LX pitched 35 and 55 deg
-//! beside a door that swings 0 -> 90 -> 0 deg five times.
+//! The paper's sec. 4.2 on office-door: a stationary pair of URG-04LX near the corner of an
+//! office, seeing the floor and three walls, beside a door that swings 0 -> 90 -> 0 deg five
+//! times.
 //!
 //! - Detection against door angle: as in the paper, epoch i is the first epoch and j any later
 //!   one (every 0.5 s), so the door angle between them spans 0-90 deg. Each solve is tested on
