@@ -22,4 +22,5 @@ pub mod run;
 pub mod sensor_task;
 pub mod serve;
 pub mod simulate;
+pub mod truth;
 pub mod watchdog;
