@@ -10,6 +10,7 @@ pub mod chunk_queue;
 pub mod config;
 pub mod fusion_estimator;
 pub mod in_process;
+pub mod latency;
 pub mod link;
 pub mod mavlink_out;
 pub mod mavlink_task;
