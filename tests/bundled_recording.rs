@@ -52,3 +52,30 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
         assert!(truth.attitude_rms_mrad[axis] < 10.0, "{summary}");
     }
 }
+
+/// Replay is how a flight is examined afterwards, so the real fusion must give the same bytes
+/// every time: estimates, epochs and MAVLink frames.
+#[test]
+fn replaying_twice_with_the_real_fusion_writes_the_same_bytes() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING);
+    let scratch = std::env::temp_dir().join(format!("ladar-bundled-{}", std::process::id()));
+    let outputs: Vec<_> = ["first", "second"]
+        .iter()
+        .map(|run| {
+            let out = scratch.join(run);
+            let options = ReplayOptions {
+                recording: path.clone(),
+                out: Some(out.clone()),
+                ..ReplayOptions::default()
+            };
+            replay::replay(&options, |config, _| FusionEstimator::new(config)).unwrap();
+            ["trajectory.tum", "epochs.jsonl", "mavlink.tlog"]
+                .map(|file| std::fs::read(out.join(file)).unwrap())
+        })
+        .collect();
+    std::fs::remove_dir_all(&scratch).unwrap();
+    for (first, second) in outputs[0].iter().zip(&outputs[1]) {
+        assert!(first.len() > 10_000);
+        assert!(first == second, "the two replays differ");
+    }
+}
