@@ -209,6 +209,9 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
             unrecorded = report.unrecorded_chunks,
             "stopped"
         );
+        if let Some(latency) = report.latency {
+            tracing::info!("{latency}");
+        }
         Ok(())
     })
 }

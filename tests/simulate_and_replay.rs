@@ -16,11 +16,12 @@ fn scratch(name: &str) -> PathBuf {
     dir.join(name)
 }
 
-/// The hallway hover, cut to a few seconds so the test stays quick.
-fn short_scenario() -> (Scenario, PathBuf) {
+/// The hallway hover, cut to a few seconds so the test stays quick. Each test writes its own
+/// file: tests run in parallel, and one reading while another rewrites sees a truncated file.
+fn short_scenario(file: &str) -> (Scenario, PathBuf) {
     let mut scenario = Scenario::builtin("hallway-hover").unwrap();
     scenario.duration_s = 3.0;
-    let path = scratch("short.toml");
+    let path = scratch(file);
     std::fs::write(&path, scenario.to_toml().unwrap()).unwrap();
     (scenario, path)
 }
@@ -40,7 +41,7 @@ fn simulated_events(scenario: &Scenario) -> (Vec<Scan>, Vec<ImuSample>, usize) {
 
 #[test]
 fn replay_of_a_simulation_gives_back_the_simulated_measurements() {
-    let (scenario, scenario_path) = short_scenario();
+    let (scenario, scenario_path) = short_scenario("measurements.toml");
     let out = scratch("short.mcap");
     let summary = simulate::simulate(scenario_path.to_str().unwrap(), &out).unwrap();
     let (sim_scans, sim_imu, sim_truth) = simulated_events(&scenario);
@@ -114,7 +115,7 @@ fn replay_of_a_simulation_gives_back_the_simulated_measurements() {
 
 #[test]
 fn a_cut_simulation_is_refused_in_one_line_and_kept_when_tolerant() {
-    let (_, scenario_path) = short_scenario();
+    let (_, scenario_path) = short_scenario("cut.toml");
     let out = scratch("cut-source.mcap");
     simulate::simulate(scenario_path.to_str().unwrap(), &out).unwrap();
     let bytes = std::fs::read(&out).unwrap();

@@ -10,14 +10,19 @@ use super::pipeline::{sensor_specs, Chunk, Estimator, Output, Pipeline, SensorSp
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
+use super::truth::{truth_errors, TruthErrors};
 use crate::estimate::Estimate;
 use crate::fusion::sources::{DecodeCounts, SensorSetup};
-use crate::sensors::TruthSample;
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::MAVLinkV2MessageRaw;
 use std::fmt;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
+
+fn triple(values: [f64; 3], decimals: usize) -> String {
+    let [a, b, c] = values;
+    format!("[{a:.decimals$} {b:.decimals$} {c:.decimals$}]")
+}
 
 /// The recording `replay` runs when given none.
 pub const BUNDLED_RECORDING: &str = "data/hallway-hover.mcap";
@@ -52,14 +57,6 @@ pub enum ReplayError {
     Mavlink(#[from] LinkError),
     #[error("cannot start the MAVLink runtime: {0}")]
     Runtime(std::io::Error),
-}
-
-/// Velocity and attitude errors of the estimates against `/truth`.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TruthErrors {
-    pub samples: usize,
-    pub velocity_rms_mps: f64,
-    pub attitude_rms_deg: f64,
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -102,11 +99,25 @@ impl fmt::Display for ReplaySummary {
             self.estimates, self.epochs, self.detections, self.exclusions
         )?;
         match &self.truth {
-            Some(t) => writeln!(
-                f,
-                "  against truth ({} estimates): velocity RMS {:.3} m/s, attitude RMS {:.2} deg",
-                t.samples, t.velocity_rms_mps, t.attitude_rms_deg
-            )?,
+            Some(t) => {
+                writeln!(
+                    f,
+                    "  against truth after the {:.0} s stationary start ({} estimates at {KEPT_ESTIMATE_HZ} Hz):",
+                    t.from_s, t.samples
+                )?;
+                writeln!(
+                    f,
+                    "    velocity error NED  std {} m/s, RMS {} m/s",
+                    triple(t.velocity_std_ned, 4),
+                    triple(t.velocity_rms_ned, 4)
+                )?;
+                writeln!(
+                    f,
+                    "    attitude error RPY  std {} mrad, RMS {} mrad",
+                    triple(t.attitude_std_mrad, 2),
+                    triple(t.attitude_rms_mrad, 2)
+                )?;
+            }
             None => writeln!(f, "  no truth to compare with")?,
         }
         if let Some(loss) = &self.loss {
@@ -213,6 +224,12 @@ pub fn replay<E: Estimator>(
         outputs.finish()?;
     }
     let truth = reader.take_truth();
+    let stationary_start_s = config
+        .as_ref()
+        .map(Config::fusion_settings)
+        .unwrap_or_default()
+        .filter
+        .stationary_start_s;
     let summary = ReplaySummary {
         duration_s: tally.duration_s(),
         chunks: tally.chunks,
@@ -228,7 +245,7 @@ pub fn replay<E: Estimator>(
         planes: tally.planes,
         detections: tally.detections,
         exclusions: tally.exclusions,
-        truth: truth_errors(&tally.kept, &truth),
+        truth: truth_errors(&tally.kept, &truth, stationary_start_s),
         loss: reader.loss().cloned(),
     };
     Ok((summary, pipeline.into_estimator()))
@@ -346,34 +363,6 @@ impl Tally {
         }
         Ok(())
     }
-}
-
-/// RMS velocity and attitude errors of `estimates` against the truth sample nearest in time.
-pub fn truth_errors(estimates: &[Estimate], truth: &[TruthSample]) -> Option<TruthErrors> {
-    if truth.is_empty() || estimates.is_empty() {
-        return None;
-    }
-    let (mut sum_v, mut sum_a, mut n) = (0.0, 0.0, 0usize);
-    for estimate in estimates {
-        let after = truth.partition_point(|s| s.t < estimate.t);
-        let nearest = [after.checked_sub(1), Some(after)]
-            .into_iter()
-            .flatten()
-            .filter_map(|i| truth.get(i))
-            .min_by(|a, b| {
-                (a.t - estimate.t)
-                    .abs()
-                    .total_cmp(&(b.t - estimate.t).abs())
-            })?;
-        sum_v += (estimate.velocity - nearest.v).norm_squared();
-        sum_a += estimate.attitude.angle_to(&nearest.q).to_degrees().powi(2);
-        n += 1;
-    }
-    Some(TruthErrors {
-        samples: n,
-        velocity_rms_mps: (sum_v / n as f64).sqrt(),
-        attitude_rms_deg: (sum_a / n as f64).sqrt(),
-    })
 }
 
 /// The MAVLink stream of a replay: frames to `mavlink.tlog` (stamped with the estimate time)

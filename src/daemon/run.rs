@@ -6,6 +6,7 @@
 
 use super::chunk_queue::{ChunkQueue, Popped, QUEUE_CHUNKS};
 use super::config::{Config, ConfigErrors, ImuOutput, ScanStream};
+use super::latency::{LatencyLog, LatencySummary};
 use super::link::{Link, LinkError};
 use super::mavlink_out::{MavlinkStream, QualityPolicy};
 use super::outputs::{OutputError, Outputs};
@@ -56,6 +57,8 @@ pub enum RunError {
 pub struct RunReport<E> {
     pub estimator: E,
     pub chunks: u64,
+    /// From reading a scan's last byte to its epoch fused (None before the first epoch).
+    pub latency: Option<LatencySummary>,
     /// Chunks the fusion never saw because it fell behind.
     pub dropped_chunks: u64,
     /// Chunks the recorder could not keep up with.
@@ -131,7 +134,11 @@ where
         let outputs = outputs.clone();
         std::thread::Builder::new()
             .name("fusion".into())
-            .spawn(move || fusion_loop(pipeline, &queue, handle, &outputs, &estimates, &progress))
+            .spawn(move || {
+                fusion_loop(
+                    pipeline, &queue, handle, &outputs, &estimates, &progress, clock,
+                )
+            })
             .map_err(|e| RunError::Fusion(e.to_string()))?
     };
     let unrecorded = recorder.as_ref().map(|(handle, _)| handle.clone());
@@ -185,6 +192,7 @@ where
             .collect(),
         estimator: fused.pipeline.into_estimator(),
         chunks: fused.chunks,
+        latency: fused.latency.summary(),
         dropped_chunks: queue.dropped(),
         unrecorded_chunks,
         recording,
@@ -300,6 +308,7 @@ fn spawn_mavlink(
 struct Fused<E: Estimator> {
     pipeline: Pipeline<E>,
     chunks: u64,
+    latency: LatencyLog,
 }
 
 /// The fusion thread: consumption order is recording order is replay order.
@@ -310,6 +319,7 @@ fn fusion_loop<E: Estimator>(
     outputs: &Mutex<Option<Outputs>>,
     estimates: &watch::Sender<Option<Estimate>>,
     progress: &watchdog::Progress,
+    clock: HostClock,
 ) -> Fused<E> {
     let names: Vec<(Arc<str>, _)> = pipeline
         .specs()
@@ -317,6 +327,7 @@ fn fusion_loop<E: Estimator>(
         .map(|s| (Arc::from(s.name.as_str()), s.encoding))
         .collect();
     let mut chunks = 0;
+    let mut latency = LatencyLog::default();
     loop {
         progress.advance();
         let chunk = match queue.pop(Duration::from_millis(100)) {
@@ -325,7 +336,14 @@ fn fusion_loop<E: Estimator>(
             Popped::Closed => break,
         };
         chunks += 1;
-        pipeline.push(&chunk, |output| deliver::<E>(output, outputs, estimates));
+        let mut closed_epoch = false;
+        pipeline.push(&chunk, |output| {
+            closed_epoch |= matches!(output, Output::Epoch(_));
+            deliver::<E>(output, outputs, estimates);
+        });
+        if closed_epoch {
+            latency.add(chunk.log_time_ns, clock.now_ns());
+        }
         if let Some(recorder) = &recorder {
             let (sensor, encoding) = names[chunk.sensor].clone();
             recorder.record(Tap {
@@ -337,7 +355,11 @@ fn fusion_loop<E: Estimator>(
             });
         }
     }
-    Fused { pipeline, chunks }
+    Fused {
+        pipeline,
+        chunks,
+        latency,
+    }
 }
 
 fn deliver<E: Estimator>(

@@ -10,9 +10,12 @@
 use super::config::Config;
 use super::in_process::{Exchanged, ScipRig, XbusRig};
 use super::recording::{Encoding, Recorder, RecordingError};
+use crate::filter::FilterConfig;
 use crate::fusion::sources::geometry_from;
 use crate::sensors::{ImuSample, ScannerGeometry, TruthSample};
-use crate::sim::{ImuOutput, Scenario, ScenarioError, SimEvent, Simulator};
+use crate::sim::{
+    ImuOutput, Oscillation, Scenario, ScenarioError, SimEvent, Simulator, Trajectory,
+};
 use std::path::Path;
 
 /// Host seconds given to the handshake before simulated time 0.
@@ -361,5 +364,50 @@ pub fn rig_config(scenario: &Scenario) -> Result<String, SimulateError> {
         imu.mount_rpy_deg,
         imu.rate_hz.round() as u32
     ));
+    text.push_str(&fusion_tables(&scenario.trajectory));
     Ok(text)
+}
+
+/// Fusion keys the simulated rig needs beyond the defaults, so that replaying the recording
+/// runs the fusion as it should run on that rig.
+fn fusion_tables(trajectory: &Trajectory) -> String {
+    // The simulated scenes are rectangular rooms and the scanners often pitch about the same
+    // axis, so lines on the floor and end walls are parallel: the odometry default refuses
+    // planes from them and most epochs would go without a full solve.
+    let mut text = String::from("\n[odometry]\naccept_parallel_lines = true\n");
+    // Zero-velocity updates during motion would pull the filter off the truth, so the
+    // stationary start ends when the scenario's motion begins.
+    if let Some(still_s) = stationary_until(trajectory) {
+        if (MIN_STATIONARY_S..FilterConfig::default().stationary_start_s).contains(&still_s) {
+            text.push_str(&format!("\n[filter]\nstationary_start_s = {still_s:?}\n"));
+        }
+    }
+    text
+}
+
+/// The filter needs at least its coarse alignment and a few zero-rate updates to start.
+const MIN_STATIONARY_S: f64 = 5.0;
+
+/// When the trajectory first moves (None: it never stands still at the start).
+fn stationary_until(trajectory: &Trajectory) -> Option<f64> {
+    let oscillates = |o: &Oscillation| {
+        o.position_amplitude_m.iter().any(|a| *a != 0.0)
+            || o.attitude_amplitude_deg.iter().any(|a| *a != 0.0)
+    };
+    match trajectory {
+        Trajectory::Stationary { .. } => None,
+        Trajectory::Hover { oscillation, .. } => {
+            oscillates(oscillation).then_some(oscillation.start_s)
+        }
+        Trajectory::Flight {
+            start_s,
+            oscillation,
+            ..
+        } => Some(if oscillates(oscillation) {
+            start_s.min(oscillation.start_s)
+        } else {
+            *start_s
+        }),
+        Trajectory::Step { at_s, .. } => Some(*at_s),
+    }
 }

@@ -1,0 +1,56 @@
+//! The replay pipeline per chunk: the bundled recording (data/hallway-hover.mcap, 76 s, two
+//! scanners at 4 Hz, IMU at 200 Hz) decoded and fused from memory, without file reading or
+//! output writing. divan reports the time per whole recording and per chunk (throughput), and
+//! the allocations. `cargo bench --bench replay`
+
+use divan::counter::ItemsCount;
+use divan::{black_box, AllocProfiler, Bencher};
+use ladar_odometer::daemon::config::Config;
+use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
+use ladar_odometer::daemon::pipeline::{sensor_specs, Chunk, Pipeline};
+use ladar_odometer::daemon::recording::{ReadMode, Recording};
+use ladar_odometer::daemon::replay::BUNDLED_RECORDING;
+use std::path::Path;
+
+#[global_allocator]
+static ALLOC: AllocProfiler = AllocProfiler::system();
+
+fn main() {
+    divan::main();
+}
+
+fn bundled() -> (Config, Vec<Chunk>) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING);
+    let recording = Recording::open(&path, ReadMode::Strict).unwrap();
+    let config = Config::parse(recording.config_toml.as_deref().unwrap(), &path).unwrap();
+    let specs = sensor_specs(&config);
+    let chunks = recording
+        .messages
+        .into_iter()
+        .map(|m| Chunk {
+            sensor: specs.iter().position(|s| s.name == m.sensor).unwrap(),
+            direction: m.direction,
+            log_time_ns: m.log_time_ns,
+            data: m.data,
+        })
+        .collect();
+    (config, chunks)
+}
+
+#[divan::bench(sample_count = 10, sample_size = 1)]
+fn bundled_recording(bencher: Bencher) {
+    let (config, chunks) = bundled();
+    bencher
+        .counter(ItemsCount::new(chunks.len()))
+        .with_inputs(|| Pipeline::new(sensor_specs(&config), FusionEstimator::new(Some(&config))))
+        .bench_local_values(|mut pipeline| {
+            let mut outputs = 0u64;
+            for chunk in &chunks {
+                pipeline.push(chunk, |output| {
+                    black_box(output);
+                    outputs += 1;
+                });
+            }
+            outputs
+        });
+}

@@ -1,0 +1,81 @@
+//! The recording shipped in the repository (`data/hallway-hover.mcap`, made from
+//! data/scenarios/bundled-hallway-hover.toml) replays through the real fusion to the accuracy
+//! the fusion reaches on that scenario. It is part of the repository, so it must exist.
+
+use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
+use ladar_odometer::daemon::replay::{self, ReplayOptions, BUNDLED_RECORDING};
+use std::path::Path;
+
+/// The repository's budget for the bundled file.
+const MAX_BYTES: u64 = 10 * 1024 * 1024;
+
+#[test]
+fn bundled_recording_replays_within_the_hover_accuracy() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING);
+    let size = std::fs::metadata(&path)
+        .unwrap_or_else(|e| panic!("{} is part of the repository: {e}", path.display()))
+        .len();
+    assert!(size <= MAX_BYTES, "{} is {size} bytes", path.display());
+
+    let options = ReplayOptions {
+        recording: path,
+        ..ReplayOptions::default()
+    };
+    let (summary, estimator) =
+        replay::replay(&options, |config, _| FusionEstimator::new(config)).unwrap();
+    println!("{summary}");
+    assert!(summary.loss.is_none());
+    assert!(summary.duration_s > 60.0, "{summary}");
+    assert!(estimator.fusion().is_some());
+    for (name, counts) in &summary.sensors {
+        assert_eq!(counts.decode_errors, 0, "{name}");
+    }
+    // One epoch a second, every one after the first with planes from both scanners.
+    assert!(summary.epochs >= 70, "{summary}");
+    assert!(
+        summary.planes as f64 / summary.epochs as f64 >= 4.0,
+        "{summary}"
+    );
+
+    let truth = summary
+        .truth
+        .expect("the simulated recording carries /truth");
+    assert_eq!(
+        truth.from_s, 20.0,
+        "the rig config sets the stationary start"
+    );
+    assert!(truth.samples >= 1000, "{summary}");
+    // tests/hallway.rs reaches about [0.006 0.003 0.001] m/s and 1-3 mrad on this geometry.
+    for axis in 0..3 {
+        assert!(truth.velocity_std_ned[axis] < 0.015, "{summary}");
+        assert!(truth.attitude_std_mrad[axis] < 4.0, "{summary}");
+        assert!(truth.attitude_rms_mrad[axis] < 10.0, "{summary}");
+    }
+}
+
+/// Replay is how a flight is examined afterwards, so the real fusion must give the same bytes
+/// every time: estimates, epochs and MAVLink frames.
+#[test]
+fn replaying_twice_with_the_real_fusion_writes_the_same_bytes() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING);
+    let scratch = std::env::temp_dir().join(format!("ladar-bundled-{}", std::process::id()));
+    let outputs: Vec<_> = ["first", "second"]
+        .iter()
+        .map(|run| {
+            let out = scratch.join(run);
+            let options = ReplayOptions {
+                recording: path.clone(),
+                out: Some(out.clone()),
+                ..ReplayOptions::default()
+            };
+            replay::replay(&options, |config, _| FusionEstimator::new(config)).unwrap();
+            ["trajectory.tum", "epochs.jsonl", "mavlink.tlog"]
+                .map(|file| std::fs::read(out.join(file)).unwrap())
+        })
+        .collect();
+    std::fs::remove_dir_all(&scratch).unwrap();
+    for (first, second) in outputs[0].iter().zip(&outputs[1]) {
+        assert!(first.len() > 10_000);
+        assert!(first == second, "the two replays differ");
+    }
+}

@@ -1,0 +1,96 @@
+//! config/default.toml and every example in config/examples/ load, and default.toml says what
+//! the code does: each key it sets equals the code's default.
+
+use ladar_odometer::daemon::config::{Config, ImuOutput, ImuSeries, ScanStream};
+use ladar_odometer::fusion::FusionSettings;
+use std::path::{Path, PathBuf};
+
+fn repository(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(path)
+}
+
+/// Key files live on the target; a test key stands in.
+fn load(path: &Path, key_file: &Path) -> Config {
+    let text = std::fs::read_to_string(path).unwrap().replace(
+        "/etc/ladar-odometer/mavlink.key",
+        &key_file.to_string_lossy(),
+    );
+    Config::parse(&text, path).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn key_file() -> PathBuf {
+    let path = std::env::temp_dir().join(format!("ladar-config-key-{}", std::process::id()));
+    std::fs::write(&path, "ab".repeat(32)).unwrap();
+    path
+}
+
+#[test]
+fn default_toml_sets_the_code_defaults() {
+    let config = load(&repository("config/default.toml"), &key_file());
+    // The fusion tables, key by key (imu_mount_rpy_deg comes from [imu], zero here).
+    let code = FusionSettings::default();
+    let file = config.fusion_settings();
+    assert_eq!(file.fusion, code.fusion);
+    assert_eq!(file.odometry, code.odometry);
+    assert_eq!(file.integrity, code.integrity);
+    assert_eq!(file.filter, code.filter);
+
+    // The daemon's own defaults: what a file that leaves the key out gets.
+    let minimal = Config::parse(
+        "[[scanner]]\nname = \"a\"\nconnection = \"serial:/dev/a\"\nrpy_deg = [0.0, 0.0, 0.0]\n\
+         translation_m = [0.0, 0.0, 0.0]\nrange_sigma_m = 0.01\n\
+         [[scanner]]\nname = \"b\"\nconnection = \"serial:/dev/b\"\nrpy_deg = [0.0, -30.0, 0.0]\n\
+         translation_m = [0.0, 0.0, 0.0]\nrange_sigma_m = 0.01\n\
+         [imu]\nconnection = \"serial:/dev/imu\"\n\
+         [mavlink]\nprofile = \"px4\"\nconnection = \"udpout:127.0.0.1:14550\"\n",
+        Path::new("minimal.toml"),
+    )
+    .unwrap();
+    for (file, code) in config.scanners.iter().zip(&minimal.scanners) {
+        assert_eq!((file.stream, file.cluster), (code.stream, code.cluster));
+        assert_eq!((file.first_step, file.last_step), (None, None));
+    }
+    assert_eq!(config.scanners[0].stream, ScanStream::Md);
+    assert_eq!(config.imu.name, minimal.imu.name);
+    assert_eq!(config.imu.rpy_deg, minimal.imu.rpy_deg);
+    assert_eq!(config.imu.translation_m, minimal.imu.translation_m);
+    assert_eq!(config.imu.output, minimal.imu.output);
+    assert_eq!(config.imu.output, ImuOutput::Rate);
+    assert_eq!(config.imu.rate_hz, minimal.imu.rate_hz);
+    assert_eq!(config.imu.series, minimal.imu.series);
+    assert_eq!(config.imu.series, ImuSeries::Auto);
+    let (file, code) = (config.mavlink.unwrap(), minimal.mavlink.unwrap());
+    assert_eq!(file.system_id, code.system_id);
+    assert_eq!(file.component_id, code.component_id);
+    assert_eq!((file.rate_hz, file.signing), (None, None));
+    assert_eq!(config.recording, minimal.recording);
+    assert_eq!(config.output, minimal.output);
+}
+
+#[test]
+fn every_example_loads_and_the_issue_rigs_are_there() {
+    let key_file = key_file();
+    let mut names = Vec::new();
+    for entry in std::fs::read_dir(repository("config/examples")).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let config = load(&path, &key_file);
+            assert!(
+                config.fusion_settings().validate().is_ok(),
+                "{}",
+                path.display()
+            );
+            names.push(path.file_name().unwrap().to_string_lossy().into_owned());
+        }
+    }
+    names.sort();
+    for wanted in [
+        "px4-utm30lx-ust20lx-mti-g-710.toml",
+        "ardupilot-two-urg04lx.toml",
+    ] {
+        assert!(
+            names.iter().any(|n| n == wanted),
+            "{wanted} missing: {names:?}"
+        );
+    }
+}
