@@ -3,8 +3,8 @@
 //! errors, after the filter's stationary start (alignment is not accuracy).
 
 use crate::estimate::Estimate;
+use crate::fusion::evaluate::ErrorSeries;
 use crate::sensors::TruthSample;
-use nalgebra::Vector3;
 
 /// Velocity and attitude errors of the estimates against `/truth`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -25,25 +25,21 @@ pub fn truth_errors(
     truth: &[TruthSample],
     from_s: f64,
 ) -> Option<TruthErrors> {
-    let mut velocity = Vec::new();
-    let mut attitude = Vec::new();
+    let mut errors = ErrorSeries::default();
     for estimate in estimates.iter().filter(|e| e.t >= from_s) {
         let nearest = nearest(truth, estimate.t)?;
-        velocity.push(estimate.velocity - nearest.v);
-        let (r, p, y) = estimate.attitude.euler_angles();
-        let (tr, tp, ty) = nearest.q.euler_angles();
-        attitude.push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+        errors.push(&estimate.velocity, &estimate.attitude, nearest);
     }
-    if velocity.is_empty() {
+    if errors.is_empty() {
         return None;
     }
     Some(TruthErrors {
-        samples: velocity.len(),
+        samples: errors.len(),
         from_s,
-        velocity_std_ned: std_dev(&velocity),
-        velocity_rms_ned: rms(&velocity),
-        attitude_std_mrad: std_dev(&attitude),
-        attitude_rms_mrad: rms(&attitude),
+        velocity_std_ned: errors.velocity_std(),
+        velocity_rms_ned: errors.velocity_rms(),
+        attitude_std_mrad: errors.attitude_std_mrad(),
+        attitude_rms_mrad: errors.attitude_rms_mrad(),
     })
 }
 
@@ -56,33 +52,10 @@ fn nearest(truth: &[TruthSample], t: f64) -> Option<&TruthSample> {
         .min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs()))
 }
 
-fn wrap(angle: f64) -> f64 {
-    let tau = std::f64::consts::TAU;
-    angle - tau * (angle / tau).round()
-}
-
-fn std_dev(values: &[Vector3<f64>]) -> [f64; 3] {
-    let mean = values.iter().sum::<Vector3<f64>>() / values.len() as f64;
-    let n = values.len().max(2) as f64 - 1.0;
-    let sum = values
-        .iter()
-        .map(|v| (v - mean).component_mul(&(v - mean)))
-        .sum::<Vector3<f64>>();
-    (sum / n).map(f64::sqrt).into()
-}
-
-fn rms(values: &[Vector3<f64>]) -> [f64; 3] {
-    let sum = values
-        .iter()
-        .map(|v| v.component_mul(v))
-        .sum::<Vector3<f64>>();
-    (sum / values.len() as f64).map(f64::sqrt).into()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Matrix3, UnitQuaternion};
+    use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
     fn truth(t: f64) -> TruthSample {
         TruthSample {

@@ -213,10 +213,56 @@ pub fn scanner_setups(simulator: &Simulator) -> Option<[ScannerSetup; 2]> {
     }))
 }
 
-#[derive(Debug, Default)]
-struct Errors {
+/// Velocity (NED, m/s) and roll/pitch/yaw (Euler angle, mrad) errors against truth, per axis:
+/// the figures both this evaluation and the replay summary report.
+#[derive(Debug, Default, Clone)]
+pub struct ErrorSeries {
     velocity: Vec<Vector3<f64>>,
     attitude: Vec<Vector3<f64>>,
+}
+
+impl ErrorSeries {
+    pub fn push(
+        &mut self,
+        velocity: &Vector3<f64>,
+        attitude: &UnitQuaternion<f64>,
+        truth: &TruthSample,
+    ) {
+        self.velocity.push(velocity - truth.v);
+        let (r, p, y) = attitude.euler_angles();
+        let (tr, tp, ty) = truth.q.euler_angles();
+        self.attitude
+            .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+    }
+
+    pub fn len(&self) -> usize {
+        self.velocity.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.velocity.is_empty()
+    }
+
+    pub fn velocity_std(&self) -> [f64; 3] {
+        std_dev(&self.velocity)
+    }
+
+    pub fn velocity_rms(&self) -> [f64; 3] {
+        rms(&self.velocity)
+    }
+
+    pub fn attitude_std_mrad(&self) -> [f64; 3] {
+        std_dev(&self.attitude)
+    }
+
+    pub fn attitude_rms_mrad(&self) -> [f64; 3] {
+        rms(&self.attitude)
+    }
+}
+
+#[derive(Debug, Default)]
+struct Errors {
+    series: ErrorSeries,
     last_position: Option<(f64, Vector3<f64>)>,
     distance: f64,
     last_truth: Option<Vector3<f64>>,
@@ -233,11 +279,7 @@ impl Errors {
         position: &Vector3<f64>,
         truth: &TruthSample,
     ) {
-        self.velocity.push(velocity - truth.v);
-        let (r, p, y) = attitude.euler_angles();
-        let (tr, tp, ty) = truth.q.euler_angles();
-        self.attitude
-            .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+        self.series.push(velocity, attitude, truth);
         self.last_position = Some((truth.t, position - truth.p));
         if let Some(last) = self.last_truth {
             self.distance += (truth.p - last).norm();
@@ -266,10 +308,10 @@ impl Errors {
             scenario,
             from_s,
             to_s,
-            velocity_error_std_ned: std_dev(&self.velocity),
-            velocity_error_rms_ned: rms(&self.velocity),
-            attitude_error_std_mrad: std_dev(&self.attitude),
-            attitude_error_rms_mrad: rms(&self.attitude),
+            velocity_error_std_ned: self.series.velocity_std(),
+            velocity_error_rms_ned: self.series.velocity_rms(),
+            attitude_error_std_mrad: self.series.attitude_std_mrad(),
+            attitude_error_rms_mrad: self.series.attitude_rms_mrad(),
             horizontal_error_end_m: horizontal,
             position_error_end_m: end.into(),
             distance_travelled_m: self.distance,
