@@ -15,42 +15,11 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
+mod support;
+use support::{free_port, rig_config as config_text};
+
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("ladar-bad-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn config_text(front: &str, pitched: &str, imu: &str) -> String {
-    format!(
-        r#"
-[[scanner]]
-name = "front"
-connection = "{front}"
-rpy_deg = [0.0, 0.0, 0.0]
-translation_m = [0.1, 0.0, 0.0]
-range_sigma_m = 0.01
-
-[[scanner]]
-name = "pitched"
-connection = "{pitched}"
-rpy_deg = [0.0, 20.0, 0.0]
-translation_m = [0.1, 0.0, -0.1]
-range_sigma_m = 0.01
-
-[imu]
-connection = "{imu}"
-rate_hz = 100
-"#
-    )
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    support::scratch("bad", name)
 }
 
 /// Accepts connections and answers each with seeded random bytes, some of them line feeds.

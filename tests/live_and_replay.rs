@@ -149,36 +149,11 @@ async fn forward(
     }
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
+mod support;
+use support::free_port;
 
 fn config_text(front: &str, pitched: &str, imu: &str, mavlink: Option<u16>) -> String {
-    let mut text = format!(
-        r#"
-[[scanner]]
-name = "front"
-connection = "{front}"
-rpy_deg = [0.0, 0.0, 0.0]
-translation_m = [0.1, 0.0, 0.0]
-range_sigma_m = 0.01
-
-[[scanner]]
-name = "pitched"
-connection = "{pitched}"
-rpy_deg = [0.0, 20.0, 0.0]
-translation_m = [0.1, 0.0, -0.1]
-range_sigma_m = 0.01
-
-[imu]
-connection = "{imu}"
-rate_hz = 100
-"#
-    );
+    let mut text = support::rig_config(front, pitched, imu);
     if let Some(port) = mavlink {
         text.push_str(&format!(
             "\n[mavlink]\nprofile = \"px4\"\nconnection = \"udpout:127.0.0.1:{port}\"\nrate_hz = 30\n"
@@ -188,9 +163,7 @@ rate_hz = 100
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("ladar-live-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+    support::scratch("live", name)
 }
 
 fn concatenated_rx(recording: &Recording, sensor: &str) -> Vec<u8> {
