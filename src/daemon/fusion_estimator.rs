@@ -119,6 +119,10 @@ impl Estimator for FusionEstimator {
         }
     }
 
+    fn epoch_estimate(&self) -> Option<Estimate> {
+        self.fusion.as_ref().and_then(Fusion::epoch_estimate)
+    }
+
     fn sensor_stale(&mut self, sensor: usize, stale: bool, _t: f64) {
         let Some(fusion) = self.fusion.as_mut() else {
             return;
