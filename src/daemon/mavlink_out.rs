@@ -320,10 +320,10 @@ impl RateLimiter {
         }
     }
 
-    /// A message went out at `now` outside the schedule: the next slot is a full period later,
-    /// so the out-of-slot message takes the place of a slot instead of adding to the rate.
-    pub fn restart(&mut self, now: f64) {
-        self.next_s = Some(now + self.period_s);
+    /// A message went out at `now` outside the schedule: the next slot is `periods` periods
+    /// later, so the out-of-slot message takes the place of a slot instead of adding to the rate.
+    pub fn restart(&mut self, now: f64, periods: f64) {
+        self.next_s = Some(now + periods * self.period_s);
     }
 
     pub fn ready(&mut self, now: f64) -> bool {
@@ -347,13 +347,21 @@ impl RateLimiter {
     }
 }
 
+/// Where the steady schedule resumes after an epoch's message, in periods. Epochs come at a
+/// fixed rate that usually divides the steady rate (1 Hz epochs, 30 Hz ODOMETRY): resuming one
+/// period later would put a slot right where the next epoch falls, and the epoch would then
+/// have to wait for the spacing. Half a period more puts the next epoch mid-way between two
+/// slots, far enough from both, and keeps the average rate at the steady one (the epoch's
+/// message stands for half a slot).
+pub const EPOCH_RESTART_PERIODS: f64 = 1.5;
+
 /// What to send for each estimate and when the heartbeat is due, for one profile. Decided on
 /// estimate time alone, so a replay sends the messages the flight sent.
 ///
 /// IMU-rate estimates go out at the steady rate. The estimate an odometry epoch publishes goes
 /// out at once where the profile allows ([`Profile::epoch_spacing_s`]): if the previous message
 /// is too recent, the first estimate far enough from it goes instead, out of its slot. Either
-/// way the steady schedule restarts from that message, so epochs do not raise the rate.
+/// way the steady schedule restarts [`EPOCH_RESTART_PERIODS`] periods after that message.
 #[derive(Debug, Clone)]
 pub struct MavlinkStream {
     profile: Profile,
@@ -390,7 +398,7 @@ impl MavlinkStream {
     pub fn on_estimate(&mut self, now: f64, estimate: &Estimate) -> Option<MavMessage> {
         if self.epoch_waiting && self.spaced_from_last(estimate.t) {
             self.epoch_waiting = false;
-            self.estimates.restart(now);
+            self.estimates.restart(now, EPOCH_RESTART_PERIODS);
         } else if !self.estimates.ready(now) {
             return None;
         }
@@ -406,7 +414,7 @@ impl MavlinkStream {
             return None;
         }
         self.epoch_waiting = false;
-        self.estimates.restart(estimate.t);
+        self.estimates.restart(estimate.t, EPOCH_RESTART_PERIODS);
         self.message(estimate)
     }
 
@@ -762,11 +770,11 @@ mod tests {
             Some(1_011_719),
             "11.7 ms after the slot"
         );
-        // The slot due at t(8) moved to t(11): one period after the epoch's message.
-        let sent: Vec<u64> = (4..=20)
+        // The slot due at t(8) moved to t(15): 1.5 periods after the epoch's message.
+        let sent: Vec<u64> = (4..=24)
             .filter_map(|k| odometry_time(px4.on_estimate(t(k), &at(t(k)))))
             .collect();
-        assert_eq!(sent, [1_042_969, 1_074_219]);
+        assert_eq!(sent, [1_058_594, 1_089_844]);
     }
 
     #[test]
