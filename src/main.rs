@@ -209,8 +209,11 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
             unrecorded = report.unrecorded_chunks,
             "stopped"
         );
-        if let Some(latency) = report.latency {
+        for latency in [report.fused_latency, report.latency].into_iter().flatten() {
             tracing::info!("{latency}");
+        }
+        if report.mavlink_dropped > 0 {
+            tracing::warn!(dropped = report.mavlink_dropped, "MAVLink messages dropped");
         }
         Ok(())
     })

@@ -10,7 +10,7 @@ use ladar_odometer::daemon::run::{self, RunOptions};
 use ladar_odometer::daemon::serve::{self, SharedScene, StillRoom};
 use ladar_odometer::estimate::{Estimate, IntegrityStatus};
 use ladar_odometer::sensors::{ImuSample, Scan, ScannerGeometry};
-use mavlink::dialects::ardupilotmega::MavMessage;
+use mavlink::dialects::ardupilotmega::{MavMessage, ODOMETRY_DATA};
 use mavlink::{MavlinkReader, MavlinkVersion};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use std::path::{Path, PathBuf};
@@ -22,12 +22,38 @@ use tokio::sync::watch;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
+/// Scans of the pitched scanner (40 Hz) per echoed epoch: 2 Hz.
+const SCANS_PER_EPOCH: usize = 20;
+
 /// Records every call like [`EventTrace`] and answers each IMU sample with an estimate at its
-/// time, so that the MAVLink path and the bit-for-bit comparison have estimates to carry.
+/// time, so that the MAVLink path and the bit-for-bit comparison have estimates to carry. Every
+/// `SCANS_PER_EPOCH` pitched scans close an epoch, whose estimate is the newest IMU one marked
+/// with y = 1 m.
 #[derive(Debug, Default)]
 struct Echo {
     trace: EventTrace,
     estimates: Vec<Estimate>,
+    epoch_estimates: Vec<Estimate>,
+    pitched_scans: usize,
+}
+
+fn echoed(t: f64) -> Estimate {
+    Estimate {
+        t,
+        position: Vector3::new(t, 0.0, -1.0),
+        velocity: Vector3::new(0.5, 0.0, 0.0),
+        attitude: UnitQuaternion::identity(),
+        angular_rate: Vector3::zeros(),
+        position_covariance: Matrix3::identity() * 0.01,
+        velocity_covariance: Matrix3::identity() * 0.0025,
+        attitude_covariance: Matrix3::identity() * 1e-4,
+        gyro_bias: Vector3::zeros(),
+        accel_bias: Vector3::zeros(),
+        reset_counter: 0,
+        integrity: Some(IntegrityStatus::Ok),
+        since_last_fused: 0.0,
+        degraded: false,
+    }
 }
 
 impl Estimator for Echo {
@@ -37,27 +63,25 @@ impl Estimator for Echo {
     }
     fn imu(&mut self, sample: ImuSample) -> Option<Estimate> {
         self.trace.imu(sample);
-        let estimate = Estimate {
-            t: sample.time(),
-            position: Vector3::new(sample.time(), 0.0, -1.0),
-            velocity: Vector3::new(0.5, 0.0, 0.0),
-            attitude: UnitQuaternion::identity(),
-            angular_rate: Vector3::zeros(),
-            position_covariance: Matrix3::identity() * 0.01,
-            velocity_covariance: Matrix3::identity() * 0.0025,
-            attitude_covariance: Matrix3::identity() * 1e-4,
-            gyro_bias: Vector3::zeros(),
-            accel_bias: Vector3::zeros(),
-            reset_counter: 0,
-            integrity: Some(IntegrityStatus::Ok),
-            since_last_fused: 0.0,
-            degraded: false,
-        };
+        let estimate = echoed(sample.time());
         self.estimates.push(estimate.clone());
         Some(estimate)
     }
     fn scan(&mut self, scan: Scan) -> Option<()> {
-        self.trace.scan(scan)
+        let pitched = scan.sensor == 1;
+        self.trace.scan(scan);
+        self.pitched_scans += usize::from(pitched);
+        let last = self.estimates.last()?;
+        if !pitched || !self.pitched_scans.is_multiple_of(SCANS_PER_EPOCH) {
+            return None;
+        }
+        let mut estimate = last.clone();
+        estimate.position.y = 1.0;
+        self.epoch_estimates.push(estimate);
+        Some(())
+    }
+    fn epoch_estimate(&self) -> Option<Estimate> {
+        self.epoch_estimates.last().cloned()
     }
     fn sensor_stale(&mut self, sensor: usize, stale: bool, t: f64) {
         self.trace.sensor_stale(sensor, stale, t);
@@ -311,7 +335,8 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
         *pitched.delivered.lock().unwrap()
     );
 
-    // MAVLink: heartbeats at 1 Hz and ODOMETRY at the configured 30 Hz, from our identity.
+    // MAVLink: heartbeats at 1 Hz and ODOMETRY at the configured 30 Hz, plus the epochs' (each
+    // takes the place of the next slot, so at 2 Hz epochs a little over 30 Hz on average).
     let messages = received.lock().unwrap().clone();
     let heartbeats = messages
         .iter()
@@ -327,8 +352,13 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
     assert!((4..=8).contains(&heartbeats), "{heartbeats}");
     let span = odometry.last().unwrap().time_usec - odometry[0].time_usec;
     let rate = (odometry.len() - 1) as f64 / (span as f64 * 1e-6);
-    assert!((25.0..=31.0).contains(&rate), "{rate} Hz");
+    assert!((25.0..=32.0).contains(&rate), "{rate} Hz");
     assert!(odometry.iter().all(|o| o.vx == 0.5 && o.quality > 0));
+    assert_epochs_reached_the_autopilot(
+        &report.estimator.epoch_estimates,
+        &report.estimator.estimates,
+        &odometry,
+    );
 
     // Replay: the same calls and the same estimates, bit for bit.
     let (summary, replayed) = replay::replay(
@@ -348,12 +378,80 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
         format!("{:?}", replayed.estimates),
         format!("{:?}", report.estimator.estimates)
     );
+    assert_eq!(
+        format!("{:?}", replayed.epoch_estimates),
+        format!("{:?}", report.estimator.epoch_estimates)
+    );
     assert_eq!(summary.estimates as usize, imu_samples);
+    // The replay decides the same ODOMETRY messages: the live ones are its beginning (the
+    // MAVLink task stops before the fusion has drained its last chunks).
+    let replayed_odometry = tlog_odometry(&dir.join("replay-out").join("mavlink.tlog"));
+    assert!(odometry.len() <= replayed_odometry.len());
+    assert_eq!(
+        format!("{odometry:?}"),
+        format!("{:?}", &replayed_odometry[..odometry.len()])
+    );
     assert_eq!(
         std::fs::read(out.join("trajectory.tum")).unwrap(),
         std::fs::read(dir.join("replay-out").join("trajectory.tum")).unwrap()
     );
     assert_replay_output_exists(&dir.join("replay-out"));
+}
+
+/// Each epoch's estimate went out at once (its ODOMETRY is the marked one at the epoch's time)
+/// or, when the previous message was under 10 ms before, the next message is the first IMU
+/// estimate 10 ms after that one, out of its 30 Hz slot.
+fn assert_epochs_reached_the_autopilot(
+    epochs: &[Estimate],
+    estimates: &[Estimate],
+    odometry: &[ODOMETRY_DATA],
+) {
+    let micros = |e: &Estimate| (e.t * 1e6).round() as u64;
+    let mut at_once = 0;
+    for epoch in epochs {
+        let t_us = micros(epoch);
+        if odometry.iter().any(|o| o.time_usec == t_us && o.y == 1.0) {
+            at_once += 1;
+            continue;
+        }
+        let previous = odometry.iter().rev().find(|o| o.time_usec <= t_us);
+        let next = odometry.iter().find(|o| o.time_usec > t_us);
+        let (Some(previous), Some(next)) = (previous, next) else {
+            panic!("the epoch at {t_us} us was neither sent nor waiting behind a message");
+        };
+        let carrier = estimates
+            .iter()
+            .map(micros)
+            .find(|&t| t > t_us && t >= previous.time_usec + 9_999);
+        assert_eq!(
+            Some(next.time_usec),
+            carrier,
+            "the epoch at {t_us} us (previous message at {} us)",
+            previous.time_usec
+        );
+    }
+    assert!(epochs.len() >= 5, "{} epochs", epochs.len());
+    assert!(at_once > 0, "no epoch was sent at once");
+}
+
+/// ODOMETRY messages of a `mavlink.tlog` (8-byte time, then a MAVLink 2 frame, repeated).
+fn tlog_odometry(path: &Path) -> Vec<ODOMETRY_DATA> {
+    let bytes = std::fs::read(path).unwrap();
+    let mut odometry = Vec::new();
+    let mut at = 0;
+    while at < bytes.len() {
+        let frame = &bytes[at + 8..];
+        let signed = frame[2] & 1 == 1;
+        let length = 12 + usize::from(frame[1]) + if signed { 13 } else { 0 };
+        let (_, message) = MavlinkReader::new(&frame[..length])
+            .read_message::<MavMessage>(MavlinkVersion::V2)
+            .unwrap();
+        if let MavMessage::ODOMETRY(o) = message {
+            odometry.push(o);
+        }
+        at += 8 + length;
+    }
+    odometry
 }
 
 fn assert_replay_output_exists(dir: &Path) {

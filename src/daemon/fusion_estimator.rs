@@ -119,6 +119,10 @@ impl Estimator for FusionEstimator {
         }
     }
 
+    fn epoch_estimate(&self) -> Option<Estimate> {
+        self.fusion.as_ref().and_then(Fusion::epoch_estimate)
+    }
+
     fn sensor_stale(&mut self, sensor: usize, stale: bool, _t: f64) {
         let Some(fusion) = self.fusion.as_mut() else {
             return;
@@ -140,5 +144,51 @@ impl Estimator for FusionEstimator {
             ),
             excluded: epoch.excluded_planes.len(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::filter::eskf::FilterPhase;
+    use crate::fusion::evaluate::scanner_setups;
+    use crate::fusion::{EpochOutcome, Fusion, FusionSettings};
+    use crate::sim::{Scenario, SimEvent, Simulator};
+
+    #[test]
+    fn an_epoch_publishes_its_update_at_the_newest_imu_time() {
+        let mut scenario = Scenario::builtin("hallway-hover").unwrap();
+        scenario.duration_s = 4.0;
+        let mut settings = FusionSettings::default();
+        settings.odometry.accept_parallel_lines = true;
+        let mut simulator = Simulator::new(&scenario).unwrap();
+        let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+        let (mut last_imu_estimate, mut fused) = (None, 0);
+        for event in simulator.events() {
+            let scan = match event {
+                SimEvent::Imu(sample) => {
+                    last_imu_estimate = fusion.push_imu(sample).or(last_imu_estimate);
+                    continue;
+                }
+                SimEvent::Scan { scan, .. } => scan,
+                SimEvent::Truth(_) => continue,
+            };
+            let Some(record) = fusion.push_scan(scan) else {
+                continue;
+            };
+            let Some(estimate) = fusion.epoch_estimate() else {
+                assert_eq!(fusion.filter().phase(), FilterPhase::Aligning);
+                continue;
+            };
+            let before = last_imu_estimate.as_ref().unwrap();
+            assert_eq!(estimate.t, before.t, "no waiting for the next IMU sample");
+            if record.status.is_some() {
+                assert_eq!(estimate.integrity, record.status);
+            }
+            if record.outcome == EpochOutcome::Fused {
+                fused += 1;
+                assert_ne!(estimate.position, before.position, "the update is in it");
+            }
+        }
+        assert!(fused >= 1, "{fused} epochs fused");
     }
 }

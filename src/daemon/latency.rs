@@ -1,15 +1,18 @@
-//! Scan-to-fused latency of the live daemon: from the moment the chunk holding a scan's last
-//! byte was read off the port (its host time) to the moment the epoch that scan closed has been
-//! fused and its outputs delivered. The estimate carrying it leaves at the next IMU sample, in
-//! the MAVLink profile's next rate slot.
+//! Latencies of the live daemon, from the moment the chunk holding a scan's last byte was read
+//! off the port (its host time) to a later moment on the same clock:
+//! - scan to MAVLink: the bytes of the first MAVLink message carrying the epoch that scan
+//!   closed have been written to the link (the figure the autopilot sees);
+//! - scan to fused: the epoch has been fused and its outputs delivered to the MAVLink task.
 
 use std::fmt;
 
 /// Latencies kept for the distribution: a bounded buffer (one a second for a day is 86 400).
 const KEPT: usize = 100_000;
 
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct LatencyLog {
+    /// What is measured, "scan-to-MAVLink" say: the log line's subject.
+    what: &'static str,
     micros: Vec<u32>,
     total: u64,
 }
@@ -17,6 +20,7 @@ pub struct LatencyLog {
 /// The distribution at shutdown, microseconds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LatencySummary {
+    pub what: &'static str,
     pub count: u64,
     pub median_us: u32,
     pub p90_us: u32,
@@ -25,9 +29,17 @@ pub struct LatencySummary {
 }
 
 impl LatencyLog {
+    pub fn new(what: &'static str) -> Self {
+        Self {
+            what,
+            micros: Vec::new(),
+            total: 0,
+        }
+    }
+
     pub fn add(&mut self, read_ns: u64, done_ns: u64) {
         let micros = u32::try_from(done_ns.saturating_sub(read_ns) / 1_000).unwrap_or(u32::MAX);
-        tracing::debug!(latency_us = micros, "epoch fused");
+        tracing::debug!(latency_us = micros, "{} latency", self.what);
         self.total += 1;
         if self.micros.len() < KEPT {
             self.micros.push(micros);
@@ -39,6 +51,7 @@ impl LatencyLog {
         sorted.sort_unstable();
         let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
         (!sorted.is_empty()).then(|| LatencySummary {
+            what: self.what,
             count: self.total,
             median_us: at(0.5),
             p90_us: at(0.9),
@@ -52,8 +65,8 @@ impl fmt::Display for LatencySummary {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "scan-to-fused latency over {} epochs: median {} us, 90 % {} us, 99 % {} us, max {} us",
-            self.count, self.median_us, self.p90_us, self.p99_us, self.max_us
+            "{} latency over {} epochs: median {} us, 90 % {} us, 99 % {} us, max {} us",
+            self.what, self.count, self.median_us, self.p90_us, self.p99_us, self.max_us
         )
     }
 }
@@ -64,7 +77,7 @@ mod tests {
 
     #[test]
     fn quantiles_of_a_known_spread() {
-        let mut log = LatencyLog::default();
+        let mut log = LatencyLog::new("scan-to-MAVLink");
         assert_eq!(log.summary(), None);
         for k in (1..=100u64).rev() {
             log.add(5_000_000, 5_000_000 + k * 1_000);
@@ -76,5 +89,8 @@ mod tests {
             (s.median_us, s.p90_us, s.p99_us, s.max_us),
             (50, 90, 99, 100)
         );
+        assert!(s
+            .to_string()
+            .starts_with("scan-to-MAVLink latency over 101 epochs"));
     }
 }

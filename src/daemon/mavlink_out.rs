@@ -57,6 +57,23 @@ impl Profile {
         }
     }
 
+    /// Closest spacing, in estimate time, at which an odometry epoch's message may follow the
+    /// previous message, or `None` where epochs wait for the steady rate. PX4's EKF2 drops an
+    /// EV sample closer to the previous one than its observation-buffer interval ("EV data too
+    /// fast"; the fusion horizon over the buffer length, 7-10 ms with default delays), so 10 ms.
+    /// ArduPilot's EKF3 spaces external navigation samples by `extNavIntervalMin_ms` = 20 ms.
+    /// A VISION_POSITION_DELTA sent early would cover a shorter interval that still holds the
+    /// whole jump of the epoch's correction, which EKF3 turns into a velocity spike of
+    /// correction / interval: the delta profile keeps its steady rate, and its next slot
+    /// carries the epoch.
+    pub fn epoch_spacing_s(self) -> Option<f64> {
+        match self {
+            Self::Px4 => Some(0.010),
+            Self::ArdupilotOdometry => Some(0.020),
+            Self::Ardupilot => None,
+        }
+    }
+
     pub fn default_rate_hz(self) -> f64 {
         match self {
             Self::Px4 => 30.0,
@@ -303,6 +320,12 @@ impl RateLimiter {
         }
     }
 
+    /// A message went out at `now` outside the schedule: the next slot is `periods` periods
+    /// later, so the out-of-slot message takes the place of a slot instead of adding to the rate.
+    pub fn restart(&mut self, now: f64, periods: f64) {
+        self.next_s = Some(now + periods * self.period_s);
+    }
+
     pub fn ready(&mut self, now: f64) -> bool {
         match self.next_s {
             Some(next) if now < next => false,
@@ -324,8 +347,21 @@ impl RateLimiter {
     }
 }
 
-/// Everything the MAVLink task decides: what to send for each estimate and when the heartbeat
-/// is due, for one profile.
+/// Where the steady schedule resumes after an epoch's message, in periods. Epochs come at a
+/// fixed rate that usually divides the steady rate (1 Hz epochs, 30 Hz ODOMETRY): resuming one
+/// period later would put a slot right where the next epoch falls, and the epoch would then
+/// have to wait for the spacing. Half a period more puts the next epoch mid-way between two
+/// slots, far enough from both, and keeps the average rate at the steady one (the epoch's
+/// message stands for half a slot).
+pub const EPOCH_RESTART_PERIODS: f64 = 1.5;
+
+/// What to send for each estimate and when the heartbeat is due, for one profile. Decided on
+/// estimate time alone, so a replay sends the messages the flight sent.
+///
+/// IMU-rate estimates go out at the steady rate. The estimate an odometry epoch publishes goes
+/// out at once where the profile allows ([`Profile::epoch_spacing_s`]): if the previous message
+/// is too recent, the first estimate far enough from it goes instead, out of its slot. Either
+/// way the steady schedule restarts [`EPOCH_RESTART_PERIODS`] periods after that message.
 #[derive(Debug, Clone)]
 pub struct MavlinkStream {
     profile: Profile,
@@ -333,6 +369,8 @@ pub struct MavlinkStream {
     estimates: RateLimiter,
     heartbeats: RateLimiter,
     last_sent: Option<Estimate>,
+    /// An epoch's estimate came too soon after the previous message and is still to be carried.
+    epoch_waiting: bool,
 }
 
 impl MavlinkStream {
@@ -343,6 +381,7 @@ impl MavlinkStream {
             estimates: RateLimiter::new(rate_hz),
             heartbeats: RateLimiter::new(HEARTBEAT_RATE_HZ),
             last_sent: None,
+            epoch_waiting: false,
         }
     }
 
@@ -357,9 +396,38 @@ impl MavlinkStream {
     /// The message for this estimate if one is due at `now`. The ArduPilot delta profile sends
     /// nothing for the first estimate (and after a reset): it needs a previous one.
     pub fn on_estimate(&mut self, now: f64, estimate: &Estimate) -> Option<MavMessage> {
-        if !self.estimates.ready(now) {
+        if self.epoch_waiting && self.spaced_from_last(estimate.t) {
+            self.epoch_waiting = false;
+            self.estimates.restart(now, EPOCH_RESTART_PERIODS);
+        } else if !self.estimates.ready(now) {
             return None;
         }
+        self.message(estimate)
+    }
+
+    /// The message for the estimate an odometry epoch published, if the profile sends epochs
+    /// early and the previous message is not too recent; otherwise a later estimate carries it.
+    pub fn on_epoch_estimate(&mut self, estimate: &Estimate) -> Option<MavMessage> {
+        self.profile.epoch_spacing_s()?;
+        if !self.spaced_from_last(estimate.t) {
+            self.epoch_waiting = true;
+            return None;
+        }
+        self.epoch_waiting = false;
+        self.estimates.restart(estimate.t, EPOCH_RESTART_PERIODS);
+        self.message(estimate)
+    }
+
+    fn spaced_from_last(&self, t: f64) -> bool {
+        // Message times are whole microseconds: half of one absorbs the rounding of sample times.
+        const TOLERANCE_S: f64 = 0.5e-6;
+        let spacing = self.profile.epoch_spacing_s().unwrap_or(f64::INFINITY);
+        self.last_sent
+            .as_ref()
+            .is_none_or(|last| t - last.t >= spacing - TOLERANCE_S)
+    }
+
+    fn message(&mut self, estimate: &Estimate) -> Option<MavMessage> {
         let message = match self.profile {
             Profile::Px4 | Profile::ArdupilotOdometry => {
                 Some(odometry(estimate, self.policy.quality(estimate)))
@@ -676,6 +744,74 @@ mod tests {
             "20 sends at 10 Hz, the first has no previous"
         );
         assert_eq!(heartbeats, 2);
+    }
+
+    fn at(t: f64) -> Estimate {
+        Estimate { t, ..estimate() }
+    }
+
+    fn odometry_time(message: Option<MavMessage>) -> Option<u64> {
+        match message {
+            Some(MavMessage::ODOMETRY(o)) => Some(o.time_usec),
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn an_epoch_goes_out_at_once_and_takes_the_place_of_the_next_slot() {
+        // Binary-exact times: a 32 Hz schedule over estimates every 1/256 s.
+        let t = |k: u32| 1.0 + f64::from(k) / 256.0;
+        let mut px4 = MavlinkStream::new(Profile::Px4, 32.0, QualityPolicy::default());
+        assert!(px4.on_estimate(t(0), &at(t(0))).is_some());
+        assert!(px4.on_estimate(t(3), &at(t(3))).is_none());
+        let epoch = px4.on_epoch_estimate(&at(t(3)));
+        assert_eq!(
+            odometry_time(epoch),
+            Some(1_011_719),
+            "11.7 ms after the slot"
+        );
+        // The slot due at t(8) moved to t(15): 1.5 periods after the epoch's message.
+        let sent: Vec<u64> = (4..=24)
+            .filter_map(|k| odometry_time(px4.on_estimate(t(k), &at(t(k)))))
+            .collect();
+        assert_eq!(sent, [1_058_594, 1_089_844]);
+    }
+
+    #[test]
+    fn an_epoch_too_close_to_the_previous_message_rides_on_the_first_estimate_far_enough() {
+        let mut px4 = MavlinkStream::new(Profile::Px4, 30.0, QualityPolicy::default());
+        let times = [2.0, 2.0025, 2.005, 2.0075, 2.01, 2.0125];
+        assert!(px4.on_estimate(times[0], &at(times[0])).is_some());
+        assert!(px4.on_estimate(times[1], &at(times[1])).is_none());
+        assert!(
+            px4.on_epoch_estimate(&at(times[1])).is_none(),
+            "2.5 ms after the previous message: EKF2 would drop it"
+        );
+        let sent: Vec<Option<u64>> = times[2..]
+            .iter()
+            .map(|&t| odometry_time(px4.on_estimate(t, &at(t))))
+            .collect();
+        assert_eq!(sent, [None, None, Some(2_010_000), None]);
+    }
+
+    #[test]
+    fn the_delta_profile_keeps_its_steady_rate_through_epochs() {
+        let steady = |with_epochs: bool| {
+            let mut stream = MavlinkStream::new(Profile::Ardupilot, 10.0, QualityPolicy::default());
+            let mut sent = Vec::new();
+            for k in 0..100 {
+                let t = f64::from(k) * 0.01;
+                if let Some(MavMessage::VISION_POSITION_DELTA(d)) = stream.on_estimate(t, &at(t)) {
+                    sent.push(d.time_usec);
+                }
+                if with_epochs && k % 7 == 3 {
+                    assert!(stream.on_epoch_estimate(&at(t)).is_none());
+                }
+            }
+            sent
+        };
+        assert_eq!(steady(true), steady(false));
+        assert_eq!(steady(true).len(), 9);
     }
 
     #[test]

@@ -1,50 +1,149 @@
-//! The MAVLink task: takes the latest [`Estimate`] from a watch channel (so a slow autopilot link
-//! never holds up the fusion: it only ever sees the newest estimate), sends what the profile's
-//! [`MavlinkStream`] decides, and the heartbeat on the host clock.
+//! The MAVLink task: sends the messages the fusion thread decided on (a [`MavlinkStream`] there
+//! picks them on estimate time, so a replay sends the same ones) and the heartbeat on the host
+//! clock. The fusion hands messages over a bounded channel without ever waiting: a link that
+//! cannot keep up loses messages, never holds up the fusion.
 //!
-//! Estimate messages are rate-limited on the estimate's own time, so replay at any speed sends
-//! the same messages as the flight did.
+//! It also measures the scan-to-MAVLink latency: a message carrying an odometry epoch comes
+//! with the host time its closing scan chunk was read, compared with the time the link's write
+//! returned.
+//!
+//! [`MavlinkStream`]: super::mavlink_out::MavlinkStream
 
+use super::latency::LatencyLog;
 use super::link::{Link, LinkError};
-use super::mavlink_out::MavlinkStream;
+use super::mavlink_out::{heartbeat, MavlinkStream, RateLimiter, HEARTBEAT_RATE_HZ};
 use crate::estimate::Estimate;
+use mavlink::dialects::ardupilotmega::MavMessage;
+use std::sync::{Mutex, PoisonError};
 use std::time::Duration;
-use tokio::sync::watch;
+use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 /// How often the heartbeat schedule is checked; the heartbeat itself goes out at 1 Hz.
 const HEARTBEAT_POLL: Duration = Duration::from_millis(100);
 
-/// Runs until `cancel` or until the estimate sender is dropped. `now` is the host time in
-/// seconds, which paces the heartbeat; `on_sent(frame)` sees every frame sent, for
-/// `mavlink.tlog` (stamped by the caller with wall-clock time). A send error ends the task: the
-/// caller decides whether to reconnect.
+/// One message for the autopilot.
+#[derive(Debug, Clone)]
+pub struct Outgoing {
+    pub message: MavMessage,
+    /// Host ns at which the scan chunk that closed the epoch this message is the first to
+    /// carry was read; `None` for a message carrying no new epoch.
+    pub epoch_read_ns: Option<u64>,
+}
+
+/// Messages waiting for the link: a second of ODOMETRY at 50 Hz.
+pub const QUEUE_MESSAGES: usize = 64;
+
+/// The fusion thread's end: decides with the profile's stream and hands over without waiting.
+pub struct Feed {
+    stream: MavlinkStream,
+    messages: mpsc::Sender<Outgoing>,
+    /// Read time of the chunk that closed the newest epoch no message has carried yet.
+    epoch_read_ns: Option<u64>,
+    dropped: u64,
+    falling_behind: bool,
+}
+
+impl Feed {
+    pub fn new(stream: MavlinkStream, messages: mpsc::Sender<Outgoing>) -> Self {
+        Self {
+            stream,
+            messages,
+            epoch_read_ns: None,
+            dropped: 0,
+            falling_behind: false,
+        }
+    }
+
+    /// An IMU-rate estimate: sent at the steady rate.
+    pub fn estimate(&mut self, estimate: &Estimate) {
+        let message = self.stream.on_estimate(estimate.t, estimate);
+        self.hand_over(message);
+    }
+
+    /// The estimate of an epoch closed by the chunk read at `read_ns`: sent at once where the
+    /// profile allows, else carried by the next message.
+    pub fn epoch_estimate(&mut self, estimate: &Estimate, read_ns: u64) {
+        self.epoch_read_ns = Some(read_ns);
+        let message = self.stream.on_epoch_estimate(estimate);
+        self.hand_over(message);
+    }
+
+    /// Messages lost because the link did not keep up.
+    pub fn dropped(&self) -> u64 {
+        self.dropped
+    }
+
+    fn hand_over(&mut self, message: Option<MavMessage>) {
+        let Some(message) = message else {
+            return;
+        };
+        let outgoing = Outgoing {
+            message,
+            epoch_read_ns: self.epoch_read_ns.take(),
+        };
+        match self.messages.try_send(outgoing) {
+            Ok(()) if self.falling_behind => {
+                self.falling_behind = false;
+                tracing::info!(dropped = self.dropped, "the MAVLink link keeps up again");
+            }
+            Ok(()) => {}
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                self.dropped += 1;
+                if !self.falling_behind {
+                    self.falling_behind = true;
+                    tracing::warn!(
+                        "the MAVLink link does not keep up: messages are dropped until it does \
+                         (check the baud rate and the profile's rate_hz)"
+                    );
+                }
+            }
+            // The task has stopped and logged why.
+            Err(mpsc::error::TrySendError::Closed(_)) => {}
+        }
+    }
+}
+
+/// Runs until `cancel` or until the fusion drops its sender. `now_ns` is the host clock of the
+/// chunks' read times, which also paces the heartbeat; `on_sent(frame)` sees every frame sent,
+/// for `mavlink.tlog` (stamped by the caller with wall-clock time); `latency` gets one entry
+/// per epoch-carrying message written. A send error ends the task: the caller decides whether
+/// to reconnect.
 pub async fn run(
     link: &Link,
-    mut stream: MavlinkStream,
-    mut estimates: watch::Receiver<Option<Estimate>>,
-    now: impl Fn() -> f64,
+    mut messages: mpsc::Receiver<Outgoing>,
+    now_ns: impl Fn() -> u64,
     mut on_sent: impl FnMut(&[u8]),
+    latency: &Mutex<LatencyLog>,
     cancel: CancellationToken,
 ) -> Result<(), LinkError> {
     let mut heartbeat_poll = tokio::time::interval(HEARTBEAT_POLL);
     heartbeat_poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut heartbeats = RateLimiter::new(HEARTBEAT_RATE_HZ);
     loop {
-        let message = tokio::select! {
+        let outgoing = tokio::select! {
             () = cancel.cancelled() => return Ok(()),
-            changed = estimates.changed() => {
-                if changed.is_err() {
-                    return Ok(());
+            received = messages.recv() => match received {
+                Some(outgoing) => outgoing,
+                None => return Ok(()),
+            },
+            _ = heartbeat_poll.tick() => {
+                let now_s = now_ns() as f64 * 1e-9;
+                match heartbeats.ready(now_s) {
+                    true => Outgoing { message: heartbeat(), epoch_read_ns: None },
+                    false => continue,
                 }
-                let latest = estimates.borrow_and_update().clone();
-                latest.and_then(|estimate| stream.on_estimate(estimate.t, &estimate))
             }
-            _ = heartbeat_poll.tick() => stream.heartbeat_due(now()),
         };
-        if let Some(message) = message {
-            if let Some(frame) = link.send(&message).await? {
-                on_sent(&frame);
+        if let Some(frame) = link.send(&outgoing.message).await? {
+            if let Some(read_ns) = outgoing.epoch_read_ns {
+                let written_ns = now_ns();
+                latency
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .add(read_ns, written_ns);
             }
+            on_sent(&frame);
         }
     }
 }
@@ -53,12 +152,11 @@ pub async fn run(
 mod tests {
     use super::*;
     use crate::daemon::link::LinkAddress;
-    use crate::daemon::mavlink_out::{Identity, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
+    use crate::daemon::mavlink_out::{odometry, Identity, QualityPolicy, DEFAULT_COMPONENT_ID};
     use crate::estimate::IntegrityStatus;
-    use mavlink::dialects::ardupilotmega::MavMessage;
     use mavlink::{MavlinkReader, MavlinkVersion};
     use nalgebra::{Matrix3, UnitQuaternion, Vector3};
-    use std::sync::{Arc, Mutex};
+    use std::sync::Arc;
     use tokio::net::UdpSocket;
     use tokio::time::timeout;
 
@@ -81,9 +179,7 @@ mod tests {
         }
     }
 
-    #[tokio::test]
-    async fn sends_odometry_and_heartbeats_to_the_autopilot() {
-        let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    async fn link_to(autopilot: &UdpSocket) -> Link {
         let address = LinkAddress::UdpOut {
             host: "127.0.0.1".into(),
             port: autopilot.local_addr().unwrap().port(),
@@ -92,32 +188,47 @@ mod tests {
             system_id: 1,
             component_id: DEFAULT_COMPONENT_ID,
         };
-        let link = Link::connect(&address, identity, None).await.unwrap();
-        let stream = MavlinkStream::new(Profile::Px4, 30.0, QualityPolicy::default());
-        let (estimates_tx, estimates_rx) = watch::channel(None);
+        Link::connect(&address, identity, None).await.unwrap()
+    }
+
+    #[tokio::test]
+    async fn sends_what_the_fusion_decided_and_heartbeats_and_times_epoch_messages() {
+        let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let link = link_to(&autopilot).await;
+        let (messages_tx, messages_rx) = mpsc::channel(8);
         let sent = Arc::new(Mutex::new(Vec::new()));
+        let latency = Arc::new(Mutex::new(LatencyLog::new("scan-to-MAVLink")));
         let cancel = CancellationToken::new();
         let task = {
-            let (sent, cancel) = (sent.clone(), cancel.clone());
+            let (sent, latency, cancel) = (sent.clone(), latency.clone(), cancel.clone());
             tokio::spawn(async move {
                 let on_sent = |f: &[u8]| sent.lock().unwrap().push(f.to_vec());
-                run(&link, stream, estimates_rx, || 0.0, on_sent, cancel).await
+                // The clock stands at 3 ms: one heartbeat, and 2 ms from a read at 1 ms.
+                let now_ns = || 3_000_000;
+                run(&link, messages_rx, now_ns, on_sent, &latency, cancel).await
             })
         };
-
+        let policy = QualityPolicy::default();
+        for i in 0..3 {
+            let e = estimate(f64::from(i));
+            let message = odometry(&e, policy.quality(&e));
+            let epoch_read_ns = (i == 1).then_some(1_000_000);
+            messages_tx
+                .send(Outgoing {
+                    message,
+                    epoch_read_ns,
+                })
+                .await
+                .unwrap();
+        }
         let mut buffer = [0u8; 300];
         let mut received = Vec::new();
-        for i in 0..3 {
-            estimates_tx.send(Some(estimate(f64::from(i)))).unwrap();
-            // One heartbeat (the clock stands still at 0) plus one ODOMETRY per estimate; waiting
-            // for each keeps the watch channel from merging estimates.
-            while received.len() < i as usize + 2 {
-                let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
-                    .await
-                    .unwrap()
-                    .unwrap();
-                received.push(buffer[..n].to_vec());
-            }
+        while received.len() < 4 {
+            let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
+                .await
+                .unwrap()
+                .unwrap();
+            received.push(buffer[..n].to_vec());
         }
         cancel.cancel();
         timeout(Duration::from_secs(5), task)
@@ -147,37 +258,31 @@ mod tests {
             })
             .collect();
         assert_eq!(heartbeats, 1, "the clock stood still: one heartbeat only");
-        assert_eq!(xs, [0.0, 1.0, 2.0]);
+        assert_eq!(xs, [0.0, 1.0, 2.0], "in the order decided");
         assert_eq!(
             *sent.lock().unwrap(),
             received,
             "on_sent saw every frame on the wire"
         );
+        let summary = latency.lock().unwrap().summary().unwrap();
+        assert_eq!((summary.count, summary.median_us), (1, 2_000));
     }
 
     #[tokio::test]
     async fn ends_when_the_fusion_drops_its_sender() {
         let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-        let address = LinkAddress::UdpOut {
-            host: "127.0.0.1".into(),
-            port: autopilot.local_addr().unwrap().port(),
-        };
-        let identity = Identity {
-            system_id: 1,
-            component_id: DEFAULT_COMPONENT_ID,
-        };
-        let link = Link::connect(&address, identity, None).await.unwrap();
-        let stream = MavlinkStream::new(Profile::Ardupilot, 10.0, QualityPolicy::default());
-        let (estimates_tx, estimates_rx) = watch::channel(None);
-        drop(estimates_tx);
+        let link = link_to(&autopilot).await;
+        let (messages_tx, messages_rx) = mpsc::channel(1);
+        drop(messages_tx);
+        let latency = Mutex::new(LatencyLog::new("scan-to-MAVLink"));
         let result = timeout(
             Duration::from_secs(5),
             run(
                 &link,
-                stream,
-                estimates_rx,
-                || 0.0,
+                messages_rx,
+                || 0,
                 |_| {},
+                &latency,
                 CancellationToken::new(),
             ),
         )

@@ -84,6 +84,11 @@ pub trait Estimator {
     fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry);
     fn imu(&mut self, sample: ImuSample) -> Option<Estimate>;
     fn scan(&mut self, scan: Scan) -> Option<Self::Epoch>;
+    /// The estimate to publish right after `scan` returned an epoch, so that the epoch reaches
+    /// the autopilot without waiting for the next IMU sample. `None` for estimators without one.
+    fn epoch_estimate(&self) -> Option<Estimate> {
+        None
+    }
     /// Sensor `sensor` (a [`Chunk::sensor`] number) went stale or came back at host time `t`.
     fn sensor_stale(&mut self, sensor: usize, stale: bool, t: f64);
     fn epoch_counts(epoch: &Self::Epoch) -> EpochCounts;
@@ -95,8 +100,13 @@ pub trait Estimator {
 #[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Output<E> {
+    /// An IMU-rate estimate.
     Estimate(Estimate),
     Epoch(E),
+    /// The estimate published right after an [`Output::Epoch`]: at the time of the IMU-rate
+    /// estimate before it, with the epoch's update applied. For the autopilot, not for
+    /// `trajectory.tum` (one line per time).
+    EpochEstimate(Estimate),
 }
 
 pub struct Pipeline<E: Estimator> {
@@ -165,6 +175,9 @@ impl<E: Estimator> Pipeline<E> {
                 SensorEvent::Scan(scan) => {
                     if let Some(epoch) = self.estimator.scan(scan) {
                         out(Output::Epoch(epoch));
+                        if let Some(estimate) = self.estimator.epoch_estimate() {
+                            out(Output::EpochEstimate(estimate));
+                        }
                     }
                 }
                 SensorEvent::Imu(sample) => {

@@ -350,6 +350,10 @@ impl Tally {
                 };
                 mavlink.estimate(&estimate, outputs)?;
             }
+            Output::EpochEstimate(estimate) => {
+                let message = mavlink.stream.on_epoch_estimate(&estimate);
+                mavlink.send(message, estimate.t, outputs)?;
+            }
             Output::Epoch(epoch) => {
                 let counts = E::epoch_counts(&epoch);
                 self.epochs += 1;
@@ -413,20 +417,29 @@ impl MavlinkOut {
         estimate: &Estimate,
         outputs: Option<&mut Outputs>,
     ) -> Result<(), ReplayError> {
-        let messages = [
-            self.stream.heartbeat_due(estimate.t),
-            self.stream.on_estimate(estimate.t, estimate),
-        ];
-        let time_us = (estimate.t * 1e6).max(0.0) as u64;
         let mut outputs = outputs;
-        for message in messages.into_iter().flatten() {
-            let frame = match &self.link {
-                Some((runtime, link)) => runtime.block_on(link.send(&message))?,
-                None => Some(self.serialise(&message)),
-            };
-            if let (Some(frame), Some(outputs)) = (frame, outputs.as_deref_mut()) {
-                outputs.mavlink(time_us, &frame)?;
-            }
+        let heartbeat = self.stream.heartbeat_due(estimate.t);
+        self.send(heartbeat, estimate.t, outputs.as_deref_mut())?;
+        let message = self.stream.on_estimate(estimate.t, estimate);
+        self.send(message, estimate.t, outputs)
+    }
+
+    /// Sends `message`, if any, and logs it in `mavlink.tlog` at estimate time `t`.
+    fn send(
+        &mut self,
+        message: Option<MavMessage>,
+        t: f64,
+        outputs: Option<&mut Outputs>,
+    ) -> Result<(), ReplayError> {
+        let Some(message) = message else {
+            return Ok(());
+        };
+        let frame = match &self.link {
+            Some((runtime, link)) => runtime.block_on(link.send(&message))?,
+            None => Some(self.serialise(&message)),
+        };
+        if let (Some(frame), Some(outputs)) = (frame, outputs) {
+            outputs.mavlink((t * 1e6).max(0.0) as u64, &frame)?;
         }
         Ok(())
     }

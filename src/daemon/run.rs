@@ -1,6 +1,7 @@
 //! `run`: the live daemon. Sensor tasks feed one chunk queue; the fusion thread records each
-//! chunk, decodes it and drives the estimator through the same [`Pipeline`] as replay; the
-//! MAVLink task sends the newest estimate; the watchdog follows the fusion loop. Cancelling the
+//! chunk, decodes it, drives the estimator through the same [`Pipeline`] as replay and decides
+//! the MAVLink messages as replay does; the MAVLink task sends them; the watchdog follows the
+//! fusion loop. Cancelling the
 //! token (SIGINT/SIGTERM in `main`) stops the sensors, drains the queue and finishes the
 //! recording.
 
@@ -9,19 +10,19 @@ use super::config::{Config, ConfigErrors, ImuOutput, ScanStream};
 use super::latency::{LatencyLog, LatencySummary};
 use super::link::{Link, LinkError};
 use super::mavlink_out::{MavlinkStream, QualityPolicy};
+use super::mavlink_task::{Feed, Outgoing, QUEUE_MESSAGES};
 use super::outputs::{OutputError, Outputs};
 use super::pipeline::{sensor_specs, Estimator, Output, Pipeline, SensorSpec};
 use super::recorder_thread::{self, RecorderHandle, RecorderSummary, Tap};
 use super::recording::{Recorder, RecordingError};
 use super::sensor_task::{self, Driver, HostClock, SensorLink};
 use super::{mavlink_task, watchdog};
-use crate::estimate::Estimate;
 use crate::fusion::sources::DecodeCounts;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
-use tokio::sync::watch;
+use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 
@@ -57,8 +58,13 @@ pub enum RunError {
 pub struct RunReport<E> {
     pub estimator: E,
     pub chunks: u64,
-    /// From reading a scan's last byte to its epoch fused (None before the first epoch).
+    /// From reading a scan's last byte to the write of the first MAVLink message carrying its
+    /// epoch (None without MAVLink or before the first epoch).
     pub latency: Option<LatencySummary>,
+    /// From reading a scan's last byte to its epoch fused and its outputs handed on.
+    pub fused_latency: Option<LatencySummary>,
+    /// MAVLink messages dropped because the link did not keep up.
+    pub mavlink_dropped: u64,
     /// Chunks the fusion never saw because it fell behind.
     pub dropped_chunks: u64,
     /// Chunks the recorder could not keep up with.
@@ -98,22 +104,30 @@ where
     ));
     let clock = HostClock::start();
     let queue = Arc::new(ChunkQueue::new(QUEUE_CHUNKS));
-    let (estimates, estimate_rx) = watch::channel::<Option<Estimate>>(None);
     let tracker = TaskTracker::new();
     let tasks_cancel = cancel.child_token();
-    if let Some(section) = &config.mavlink {
-        let signing = section.signing().map_err(RunError::Signing)?;
-        let link = Arc::new(Link::connect(&section.address(), section.identity(), signing).await?);
-        spawn_mavlink(
-            &tracker,
-            link,
-            MavlinkStream::new(section.profile, section.rate_hz(), QualityPolicy::default()),
-            estimate_rx,
-            outputs.clone(),
-            clock,
-            tasks_cancel.clone(),
-        );
-    }
+    let mavlink_latency = Arc::new(Mutex::new(LatencyLog::new("scan-to-MAVLink")));
+    let feed = match &config.mavlink {
+        Some(section) => {
+            let signing = section.signing().map_err(RunError::Signing)?;
+            let address = section.address();
+            let link = Arc::new(Link::connect(&address, section.identity(), signing).await?);
+            let (messages, messages_rx) = mpsc::channel(QUEUE_MESSAGES);
+            spawn_mavlink(
+                &tracker,
+                link,
+                messages_rx,
+                outputs.clone(),
+                mavlink_latency.clone(),
+                clock,
+                tasks_cancel.clone(),
+            );
+            let stream =
+                MavlinkStream::new(section.profile, section.rate_hz(), QualityPolicy::default());
+            Some(Feed::new(stream, messages))
+        }
+        None => None,
+    };
     let streaming: Vec<Arc<AtomicBool>> = links.iter().map(|_| Arc::default()).collect();
     for (link, flag) in links.into_iter().zip(&streaming) {
         tracker.spawn(sensor_task::run(
@@ -134,11 +148,7 @@ where
         let outputs = outputs.clone();
         std::thread::Builder::new()
             .name("fusion".into())
-            .spawn(move || {
-                fusion_loop(
-                    pipeline, &queue, handle, &outputs, &estimates, &progress, clock,
-                )
-            })
+            .spawn(move || fusion_loop(pipeline, &queue, handle, &outputs, feed, &progress, clock))
             .map_err(|e| RunError::Fusion(e.to_string()))?
     };
     let unrecorded = recorder.as_ref().map(|(handle, _)| handle.clone());
@@ -182,6 +192,10 @@ where
     {
         outputs.finish()?;
     }
+    let latency = mavlink_latency
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .summary();
     Ok(RunReport {
         sensors: fused
             .pipeline
@@ -192,7 +206,9 @@ where
             .collect(),
         estimator: fused.pipeline.into_estimator(),
         chunks: fused.chunks,
-        latency: fused.latency.summary(),
+        latency,
+        fused_latency: fused.latency.summary(),
+        mavlink_dropped: fused.feed.as_ref().map_or(0, Feed::dropped),
         dropped_chunks: queue.dropped(),
         unrecorded_chunks,
         recording,
@@ -269,9 +285,9 @@ async fn wait_streaming(flags: &[Arc<AtomicBool>]) {
 fn spawn_mavlink(
     tracker: &TaskTracker,
     link: Arc<Link>,
-    stream: MavlinkStream,
-    estimates: watch::Receiver<Option<Estimate>>,
+    messages: mpsc::Receiver<Outgoing>,
     outputs: Arc<Mutex<Option<Outputs>>>,
+    latency: Arc<Mutex<LatencyLog>>,
     clock: HostClock,
     cancel: CancellationToken,
 ) {
@@ -298,8 +314,9 @@ fn spawn_mavlink(
     };
     tracker.spawn(receiver);
     tracker.spawn(async move {
-        let now = move || clock.now_s();
-        if let Err(e) = mavlink_task::run(&link, stream, estimates, now, tlog, cancel).await {
+        let now_ns = move || clock.now_ns();
+        let sent = mavlink_task::run(&link, messages, now_ns, tlog, &latency, cancel).await;
+        if let Err(e) = sent {
             tracing::error!("{e}; MAVLink output stopped");
         }
     });
@@ -309,6 +326,7 @@ struct Fused<E: Estimator> {
     pipeline: Pipeline<E>,
     chunks: u64,
     latency: LatencyLog,
+    feed: Option<Feed>,
 }
 
 /// The fusion thread: consumption order is recording order is replay order.
@@ -317,7 +335,7 @@ fn fusion_loop<E: Estimator>(
     queue: &ChunkQueue,
     recorder: Option<RecorderHandle>,
     outputs: &Mutex<Option<Outputs>>,
-    estimates: &watch::Sender<Option<Estimate>>,
+    mut feed: Option<Feed>,
     progress: &watchdog::Progress,
     clock: HostClock,
 ) -> Fused<E> {
@@ -327,7 +345,7 @@ fn fusion_loop<E: Estimator>(
         .map(|s| (Arc::from(s.name.as_str()), s.encoding))
         .collect();
     let mut chunks = 0;
-    let mut latency = LatencyLog::default();
+    let mut latency = LatencyLog::new("scan-to-fused");
     loop {
         progress.advance();
         let chunk = match queue.pop(Duration::from_millis(100)) {
@@ -339,7 +357,7 @@ fn fusion_loop<E: Estimator>(
         let mut closed_epoch = false;
         pipeline.push(&chunk, |output| {
             closed_epoch |= matches!(output, Output::Epoch(_));
-            deliver::<E>(output, outputs, estimates);
+            deliver::<E>(output, chunk.log_time_ns, outputs, feed.as_mut());
         });
         if closed_epoch {
             latency.add(chunk.log_time_ns, clock.now_ns());
@@ -359,26 +377,32 @@ fn fusion_loop<E: Estimator>(
         pipeline,
         chunks,
         latency,
+        feed,
     }
 }
 
+/// Writes an output to the files and offers estimates to the MAVLink feed; `read_ns` is the
+/// read time of the chunk that produced it.
 fn deliver<E: Estimator>(
     output: Output<E::Epoch>,
+    read_ns: u64,
     outputs: &Mutex<Option<Outputs>>,
-    estimates: &watch::Sender<Option<Estimate>>,
+    feed: Option<&mut Feed>,
 ) {
     let mut files = outputs.lock().unwrap_or_else(PoisonError::into_inner);
     let written = match (&output, files.as_mut()) {
         (Output::Estimate(estimate), Some(out)) => out.trajectory(estimate),
         (Output::Epoch(epoch), Some(out)) => out.epoch(epoch),
-        (_, None) => Ok(()),
+        (Output::EpochEstimate(_), _) | (_, None) => Ok(()),
     };
     if let Err(e) = written {
         tracing::error!("{e}; output files stop here");
         *files = None;
     }
     drop(files);
-    if let Output::Estimate(estimate) = output {
-        estimates.send_replace(Some(estimate));
+    match (output, feed) {
+        (Output::Estimate(estimate), Some(feed)) => feed.estimate(&estimate),
+        (Output::EpochEstimate(estimate), Some(feed)) => feed.epoch_estimate(&estimate, read_ns),
+        _ => {}
     }
 }

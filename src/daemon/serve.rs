@@ -392,6 +392,14 @@ struct ScipEmulation {
 /// Device clocks start well away from the host's, as real ones do.
 const DEVICE_CLOCK_OFFSET_MS: u64 = 1_234_567;
 
+/// Emulator time of a tick: the instant it was scheduled for, not the instant this task got to
+/// it. A real device samples on its own clock and only the delivery is late; stamping the
+/// handling time instead made a loaded host's late and bunched-up ticks into IMU samples 0.1 ms
+/// apart that each still carry a 2.5 ms increment, and scans taken at uneven intervals.
+fn scheduled_since(start: Instant, tick: tokio::time::Instant) -> Duration {
+    tick.into_std().saturating_duration_since(start)
+}
+
 impl Emulation for ScipEmulation {
     async fn session<P: AsyncRead + AsyncWrite + Unpin + Send>(
         &self,
@@ -417,9 +425,9 @@ impl Emulation for ScipEmulation {
                     emulator.set_clock(device_ms(self.start.elapsed()));
                     emulator.handle_input(&buffer[..n]);
                 }
-                _ = revolutions.tick() => {
+                tick = revolutions.tick() => {
                     if emulator.is_streaming() {
-                        let step0 = self.start.elapsed().saturating_sub(period);
+                        let step0 = scheduled_since(self.start, tick).saturating_sub(period);
                         let ranges = self
                             .scene
                             .lock()
@@ -471,8 +479,8 @@ impl Emulation for XbusEmulation {
                     }
                     emulator.handle_input(&buffer[..n]);
                 }
-                _ = samples.tick() => {
-                    let t = self.start.elapsed().as_secs_f64();
+                tick = samples.tick() => {
+                    let t = scheduled_since(self.start, tick).as_secs_f64();
                     let (accel, gyro) = self.scene.lock().unwrap_or_else(PoisonError::into_inner).imu(t);
                     let ticks = ((t * 10_000.0) as u64 + 10 * DEVICE_CLOCK_OFFSET_MS) as u32;
                     emulator.push_sample(&xbus::emulator::Sample::from_rates(ticks, accel, gyro, interval));

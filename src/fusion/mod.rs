@@ -184,6 +184,14 @@ impl Fusion {
         estimate
     }
 
+    /// What an odometry epoch publishes at once, without waiting for the next IMU sample: the
+    /// estimate at the newest IMU time with the epoch's update and integrity verdict applied.
+    /// `None` while the filter is still aligning (it has no estimate yet).
+    pub fn epoch_estimate(&self) -> Option<Estimate> {
+        let aligned = self.filter.phase() != FilterPhase::Aligning;
+        (aligned && self.filter.time().is_some()).then(|| self.estimate())
+    }
+
     pub fn filter(&self) -> &Eskf {
         &self.filter
     }
