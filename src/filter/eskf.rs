@@ -500,11 +500,7 @@ impl Eskf {
                 .ok_or(UpdateError::OutsideHistory {
                     t_ref: measurement.t_ref,
                 })?;
-        let at_t = match self.history.pose_at(measurement.t) {
-            Some(pose) => pose,
-            // Epoch slightly after the newest IMU sample: the last bridge is not available.
-            None => current,
-        };
+        let at_t = self.pose_or_ahead(measurement.t).unwrap_or(current);
         let (rows, kind) = match self.config.relative_pose_update {
             RelativePoseUpdate::Cloned => {
                 let clone = self
@@ -618,13 +614,29 @@ impl Eskf {
         self.history.pose_at(t)
     }
 
+    /// The pose at `t` from the history, or, for a `t` up to `epoch_time_tolerance_s` after the
+    /// newest IMU sample, extrapolated with the current velocity and rate: a scan pair can be
+    /// complete before the IMU sample that covers its reference time has been read, and
+    /// deskew extrapolates the same way.
+    fn pose_or_ahead(&self, t: f64) -> Option<Pose> {
+        if let Some(pose) = self.history.pose_at(t) {
+            return Some(pose);
+        }
+        let ahead = t - self.t?;
+        (ahead > 0.0 && ahead <= self.config.epoch_time_tolerance_s).then(|| Pose {
+            t,
+            p: self.state.p + self.state.v * ahead,
+            q: self.state.q * UnitQuaternion::from_scaled_axis(self.angular_rate * ahead),
+        })
+    }
+
     /// The relative pose from `t_ref` to `t` predicted by the filter, as the odometer's prior.
     /// Its covariance is exact (from the augmented covariance) when `t_ref` is the open
     /// clone's time and `t` the filter time; otherwise it is the IMU error growth over the
     /// interval: velocity and gyro-bias uncertainty times the interval plus the white noise.
     pub fn relative_pose(&self, t_ref: f64, t: f64) -> Option<PosePrior> {
         let reference = self.history.pose_at(t_ref)?;
-        let current = self.history.pose_at(t)?;
+        let current = self.pose_or_ahead(t)?;
         let (rotation, translation) = RelativePose::predict(&reference, &current);
         let tolerance = self.config.epoch_time_tolerance_s;
         let exact = self.clone.filter(|c| {

@@ -241,3 +241,46 @@ fn too_few_planes_fuse_nothing_and_say_why() {
         assert!(record.displacement.is_none() || record.rotation.is_none());
     }
 }
+
+/// A scan pair can be complete before the IMU sample that covers its reference time has been
+/// read (a late IMU read, a sensor clock fit slightly ahead): the prior then extrapolates the
+/// newest pose for those milliseconds instead of restarting the chain with a reference epoch.
+#[test]
+fn pairs_complete_before_the_imu_reaches_them_are_still_fused() {
+    let (scenario, settings) = short_hover(6.0);
+    let late_s = 0.03;
+    let mut simulator = Simulator::new(&scenario).unwrap();
+    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut held: std::collections::VecDeque<ImuSample> = Default::default();
+    let (mut outcomes, mut ahead_of_imu) = (Vec::new(), 0);
+    for event in simulator.events() {
+        match event {
+            SimEvent::Imu(sample) => held.push_back(sample),
+            SimEvent::Scan { scan, .. } => {
+                let last_beam = scan.time_of(scan.ranges_m.len() - 1, &setups()[0].geometry);
+                while held.front().is_some_and(|s| s.time() <= last_beam - late_s) {
+                    fusion.push_imu(held.pop_front().unwrap());
+                }
+                let newest_imu = fusion.filter().time();
+                if let Some(record) = fusion.push_scan(scan) {
+                    ahead_of_imu += usize::from(newest_imu.is_none_or(|t| t < record.t));
+                    outcomes.push(record.outcome);
+                }
+            }
+            SimEvent::Truth(_) => {}
+        }
+    }
+    assert_eq!(
+        ahead_of_imu,
+        outcomes.len(),
+        "every pair must be ahead of the IMU"
+    );
+    // The first epochs are references while the filter aligns; once one fuses, all do.
+    let first_fused = outcomes.iter().position(|o| *o == EpochOutcome::Fused);
+    let after = &outcomes[first_fused.unwrap_or(outcomes.len())..];
+    assert!(after.len() >= 3, "{outcomes:?}");
+    assert!(
+        after.iter().all(|o| *o == EpochOutcome::Fused),
+        "{outcomes:?}"
+    );
+}
