@@ -88,7 +88,7 @@ impl MonteCarloReport {
     }
 }
 
-/// The runs differ in the ways the runs do not agree on.
+/// Why a Monte Carlo study could not run.
 #[derive(Debug, thiserror::Error)]
 pub enum MonteCarloError {
     #[error("{0}")]
