@@ -510,7 +510,12 @@ impl Eskf {
                     .ok_or(UpdateError::NoClone {
                         t_ref: measurement.t_ref,
                     })?;
-                let bridged = measurement.bridged(&clone, &at_ref, &at_t, &current);
+                // Bridge from the history's pose at the clone time, not from the clone: an
+                // update while the clone was open (the stationary start's zero-velocity
+                // updates) moved the history rigidly and the clone by its correlations, and
+                // the bridge must be motion alone.
+                let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
+                let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
                 (
                     bridged.cloned_rows(&clone, &self.state),
                     UpdateKind::RelativePoseCloned,
@@ -519,7 +524,12 @@ impl Eskf {
             RelativePoseUpdate::Velocity => {
                 let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
                 (
-                    bridged.velocity_rows(&at_ref, &self.state),
+                    bridged.velocity_rows(
+                        &at_ref,
+                        &self.state,
+                        &self.imu_to_body,
+                        self.config.gyro_noise_density,
+                    ),
                     UpdateKind::RelativePoseVelocity,
                 )
             }
@@ -571,6 +581,15 @@ impl Eskf {
         // IMU's alone and never contains the correction itself.
         self.history
             .correct(&(next.p - self.state.p), &(next.q * self.state.q.inverse()));
+        // An open clone is corrected too (a zero-velocity update moves it through its
+        // correlation with the current pose): its covariance now describes errors about the
+        // corrected pose, and the next relative pose must be compared with that pose.
+        if let Some(clone) = &mut self.clone {
+            let block =
+                |at: usize| Vector3::new(correction[at], correction[at + 1], correction[at + 2]);
+            clone.p += block(CLONE_POS);
+            clone.q = UnitQuaternion::from_scaled_axis(block(CLONE_ATT)) * clone.q;
+        }
         self.state = next;
         self.covariance = covariance;
         self.replace_latest_pose(t);

@@ -155,6 +155,57 @@ fn relative_pose_update_shrinks_only_the_observable_directions() {
 }
 
 #[test]
+fn an_update_while_a_clone_is_open_moves_the_clone_too() {
+    // At rest with a wrong velocity, the position drifts before and after the clone; a
+    // zero-velocity update corrects the velocity and, through their correlation with it,
+    // both positions. The relative pose of zero motion measured next must then agree.
+    let trajectory = Stationary {
+        q: UnitQuaternion::identity(),
+    };
+    let state = NominalState {
+        v: Vector3::new(0.1, 0.0, 0.0),
+        ..NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros())
+    };
+    // Only the velocity is uncertain, so its correlations alone carry the correction.
+    let config = FilterConfig {
+        initial_sigma_tilt_deg: 1e-3,
+        initial_sigma_accel_bias: 1e-5,
+        ..FilterConfig::default()
+    };
+    let mut filter = Eskf::with_initial_state(config, 0.0, state).unwrap();
+    feed(&mut filter, &trajectory.imu_samples(0.0, 1.0, 100.0, false));
+    assert_eq!(filter.clone_pose(), Ok(1.0));
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(1.01, 2.0, 100.0, false),
+    );
+    assert!(filter.update_zero_velocity(1e-3).unwrap().accepted);
+    let measurement = measured_relative_pose(
+        &trajectory,
+        1.0,
+        2.0,
+        0.0,
+        0.0,
+        &mut ChaCha8Rng::seed_from_u64(1),
+    );
+    let noisy = RelativePose {
+        rotation: measurement.rotation.map(|r| RelativeRotation {
+            covariance: Matrix3::identity() * 1e-6,
+            ..r
+        }),
+        translation: measurement.translation.map(|d| RelativeTranslation {
+            covariance: Matrix3::identity() * 1e-6,
+            ..d
+        }),
+        ..measurement
+    };
+    let report = filter.update_relative_pose(&noisy).unwrap();
+    assert!(report.accepted, "{report:?}");
+    assert!(report.nis < chi_square_quantile(0.99, 6), "{report:?}");
+    assert!(filter.state().p.norm() < 0.01, "{:?}", filter.state().p);
+}
+
+#[test]
 fn velocity_mode_fuses_body_velocity_and_rotation() {
     let trajectory = ConstantRotation {
         q0: UnitQuaternion::identity(),

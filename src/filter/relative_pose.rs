@@ -5,15 +5,21 @@
 //! Cloned model (global attitude errors, `R_i`, `R_j` body->NED at the two epochs):
 //! `Log(C_hat^T C) = R_j^T (dtheta_j - dtheta_i)` and
 //! `dR - R_i^T (p_j - p_i) = R_i^T (dp_j - dp_i) + R_i^T [p_j - p_i]x dtheta_i`.
-//! Velocity model (the paper's): `dR / (t_j - t_i) = R_i^T v_j` and the same rotation residual
-//! with the reference attitude taken as exact; the predicted mean velocity is taken from the
-//! filter's positions at both ends, so the acceleration within the interval is not read as a
-//! velocity error.
+//! Velocity model (after the paper's): `dR / (t_j - t_i) = R_i^T v_j`, the predicted mean
+//! velocity taken from the filter's positions at both ends, so the acceleration within the
+//! interval is not read as a velocity error. The rotation is fused as what it measures without
+//! a clone, the mean body rate over the interval: the same residual is
+//! `R_j^T (dtheta_j - dtheta_i) = -T M (dbg + w * dsg) + gyro noise` (body j close to its mean
+//! over the interval). The paper fused it on the attitude with the reference attitude taken as
+//! exact: every epoch then re-measured the absolute attitude as `attitude_i * C`, the attitude
+//! covariance collapsed to the odometer's relative-rotation noise while the attitude error
+//! random-walked, gravity could no longer correct the tilt, and the velocity drifted along the
+//! hallway whenever the board hid the end wall (docs/accuracy.md).
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::history::Pose;
-use super::state::{NominalState, ATT, CLONE_ATT, CLONE_POS, POS, VEL};
+use super::state::{NominalState, ATT, CLONE_ATT, CLONE_POS, GYRO_BIAS, GYRO_SCALE, POS, VEL};
 use super::update::{Jacobian3, Observability, Stacked};
 
 /// Rotation part of an odometry epoch.
@@ -135,19 +141,35 @@ impl RelativePose {
         rows
     }
 
-    /// The paper's rows: mean body velocity from the displacement and the rotation on the
-    /// current attitude, the reference pose (from the pose history) taken as exact.
-    pub fn velocity_rows(&self, reference: &Pose, current: &NominalState) -> Stacked {
+    /// Rows without a clone: mean body velocity from the displacement, the reference pose
+    /// (from the pose history) taken as exact, and mean body rate from the rotation, on the
+    /// gyro bias and scale factor. `imu_to_body` is `M`; `gyro_noise_density` the white gyro
+    /// noise, whose integral over the interval the rate residual also carries.
+    pub fn velocity_rows(
+        &self,
+        reference: &Pose,
+        current: &NominalState,
+        imu_to_body: &UnitQuaternion<f64>,
+        gyro_noise_density: f64,
+    ) -> Stacked {
         let interval = self.t - self.t_ref;
         let c_hat = reference.q.inverse() * current.q;
         let r_i_t = reference.q.to_rotation_matrix().into_inner().transpose();
-        let r_j_t = current.q.to_rotation_matrix().into_inner().transpose();
         let mut rows = Stacked::default();
         if let Some(rotation) = &self.rotation {
+            let m = imu_to_body.to_rotation_matrix().into_inner();
+            let rate_imu = imu_to_body.inverse_transform_vector(&c_hat.scaled_axis()) / interval;
             let mut h = Jacobian3::zeros();
-            set(&mut h, ATT, &r_j_t);
+            set(&mut h, GYRO_BIAS, &(-m * interval));
+            set(
+                &mut h,
+                GYRO_SCALE,
+                &(-m * Matrix3::from_diagonal(&rate_imu) * interval),
+            );
             let residual = rotation_residual(&c_hat, &rotation.rotation_vector);
-            rows.push(&residual, &h, &rotation.covariance, &rotation.observability);
+            let noise =
+                rotation.covariance + Matrix3::identity() * gyro_noise_density.powi(2) * interval;
+            rows.push(&residual, &h, &noise, &rotation.observability);
         }
         if let Some(translation) = &self.translation {
             let mut h = Jacobian3::zeros();

@@ -5,7 +5,7 @@ use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 use super::consistency::chi_square_quantile;
 use super::covariance::symmetrise;
-use super::state::{Covariance, ErrorState, ATT, AUGMENTED};
+use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT};
 
 /// Up to six measurement rows: two three-row blocks (e.g. rotation and displacement).
 pub const ROWS: usize = 6;
@@ -156,7 +156,7 @@ impl GateThresholds {
 }
 
 /// Gates on the NIS, then applies `K = P H^T S^-1`, `P <- P - K S K^T` and the ESKF reset of
-/// the attitude block: for a global error `Exp(dtheta_true) = Exp(dtheta) Exp(dtheta_hat)^-1`
+/// the attitude blocks (current and cloned): for a global error `Exp(dtheta_true) = Exp(dtheta) Exp(dtheta_hat)^-1`
 /// to second order, so `G = I + [dtheta_hat / 2]x` (Sola sec. 7, the sign flipped from the
 /// local-error eq. 287). Leaves `p` untouched on rejection.
 pub fn apply(
@@ -182,18 +182,20 @@ pub fn apply(
     let gain_t = cholesky.solve(&pht.transpose());
     let dx = gain_t.transpose() * y;
     *p -= pht * gain_t;
-    reset_attitude_error(p, &Vector3::new(dx[ATT], dx[ATT + 1], dx[ATT + 2]));
+    for at in [ATT, CLONE_ATT] {
+        reset_attitude_error(p, at, &Vector3::new(dx[at], dx[at + 1], dx[at + 2]));
+    }
     symmetrise(p);
     gated.correction = Some(dx);
     Ok(gated)
 }
 
-fn reset_attitude_error(p: &mut Covariance, dtheta: &Vector3<f64>) {
+fn reset_attitude_error(p: &mut Covariance, at: usize, dtheta: &Vector3<f64>) {
     let g = Matrix3::identity() + (dtheta * 0.5).cross_matrix();
-    let rows = g * p.fixed_rows::<3>(ATT);
-    p.fixed_rows_mut::<3>(ATT).copy_from(&rows);
-    let columns = p.fixed_columns::<3>(ATT) * g.transpose();
-    p.fixed_columns_mut::<3>(ATT).copy_from(&columns);
+    let rows = g * p.fixed_rows::<3>(at);
+    p.fixed_rows_mut::<3>(at).copy_from(&rows);
+    let columns = p.fixed_columns::<3>(at) * g.transpose();
+    p.fixed_columns_mut::<3>(at).copy_from(&columns);
 }
 
 #[cfg(test)]

@@ -109,6 +109,73 @@ pub enum EvaluationError {
     ScannerCount(String, usize),
 }
 
+/// A consistency yardstick: a subset of the position, velocity and attitude errors, normalised
+/// by its own marginal covariance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NeesPart {
+    /// Position, velocity and attitude: 9 dof.
+    Full,
+    /// Velocity and tilt, the states the odometry and gravity observe: 5 dof.
+    Observable,
+    Position,
+    Velocity,
+    Attitude,
+    /// The north and east components of the global attitude error: 2 dof.
+    Tilt,
+    /// The down component of the global attitude error: 1 dof.
+    Yaw,
+}
+
+impl NeesPart {
+    pub const ALL: [NeesPart; 7] = [
+        NeesPart::Full,
+        NeesPart::Observable,
+        NeesPart::Position,
+        NeesPart::Velocity,
+        NeesPart::Attitude,
+        NeesPart::Tilt,
+        NeesPart::Yaw,
+    ];
+
+    /// Indices into the 9 states position, velocity, attitude.
+    fn indices(self) -> &'static [usize] {
+        match self {
+            NeesPart::Full => &[0, 1, 2, 3, 4, 5, 6, 7, 8],
+            NeesPart::Observable => &[3, 4, 5, 6, 7],
+            NeesPart::Position => &[0, 1, 2],
+            NeesPart::Velocity => &[3, 4, 5],
+            NeesPart::Attitude => &[6, 7, 8],
+            NeesPart::Tilt => &[6, 7],
+            NeesPart::Yaw => &[8],
+        }
+    }
+
+    pub fn dof(self) -> usize {
+        self.indices().len()
+    }
+}
+
+/// Every `NeesPart` at one comparison time, in `NeesPart::ALL` order.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct NeesSample {
+    pub t: f64,
+    pub values: [f64; NeesPart::ALL.len()],
+}
+
+impl NeesSample {
+    pub fn get(&self, part: NeesPart) -> f64 {
+        self.values[part as usize]
+    }
+}
+
+/// One run's figures and its NEES once a second after the stationary start.
+#[derive(Debug, Clone)]
+pub struct RecordedRun {
+    pub report: AccuracyReport,
+    pub nees: Vec<NeesSample>,
+}
+
 /// Runs the scenario through the fusion with `settings` (whose IMU mount is taken from the
 /// scenario) and measures the accuracy.
 pub fn run_scenario(
@@ -124,6 +191,15 @@ pub fn run_scenario_with(
     settings: &FusionSettings,
     on_epoch: &mut dyn FnMut(&EpochRecord, &Estimate),
 ) -> Result<AccuracyReport, EvaluationError> {
+    Ok(run_scenario_recorded(scenario, settings, on_epoch)?.report)
+}
+
+/// As `run_scenario_with`, keeping the NEES time series (for Monte Carlo averages over runs).
+pub fn run_scenario_recorded(
+    scenario: &Scenario,
+    settings: &FusionSettings,
+    on_epoch: &mut dyn FnMut(&EpochRecord, &Estimate),
+) -> Result<RecordedRun, EvaluationError> {
     let mut simulator = Simulator::new(scenario)?;
     let imu = simulator
         .imu()
@@ -171,12 +247,7 @@ pub fn run_scenario_with(
                 );
                 if t >= next_nees {
                     next_nees += 1.0;
-                    if let Some(nees) = fusion.filter().nees(&truth) {
-                        errors.nees.push(nees.value);
-                    }
-                    if let Some(parts) = nees_parts(fusion.filter(), &truth) {
-                        errors.nees_parts.push(parts);
-                    }
+                    errors.nees.extend(nees_sample(fusion.filter(), &truth));
                 }
             }
             SimEvent::Scan { scan, .. } => {
@@ -192,12 +263,14 @@ pub fn run_scenario_with(
             SimEvent::Truth(_) => {}
         }
     }
-    Ok(errors.report(
+    let nees = errors.nees.clone();
+    let report = errors.report(
         scenario.name.clone(),
         from_s,
         epochs,
         nis.0 / nis.1.max(1) as f64,
-    ))
+    );
+    Ok(RecordedRun { report, nees })
 }
 
 /// The simulator's scanners as the fusion needs them.
@@ -266,9 +339,7 @@ struct Errors {
     last_position: Option<(f64, Vector3<f64>)>,
     distance: f64,
     last_truth: Option<Vector3<f64>>,
-    nees: Vec<f64>,
-    /// Observable-subset NEES, then the position, velocity and attitude blocks' NEES.
-    nees_parts: Vec<[f64; 4]>,
+    nees: Vec<NeesSample>,
 }
 
 impl Errors {
@@ -296,14 +367,12 @@ impl Errors {
     ) -> AccuracyReport {
         let (to_s, end) = self.last_position.unwrap_or((from_s, Vector3::zeros()));
         let horizontal = end.xy().norm();
-        let n = self.nees.len();
-        let nees_mean = self.nees.iter().sum::<f64>() / n.max(1) as f64;
-        let dof = 9 * n.max(1);
-        let interval = [0.025, 0.975].map(|p| chi_square_quantile(p, dof) / n.max(1) as f64);
-        let m = self.nees_parts.len().max(1);
-        let part_mean = |k: usize| self.nees_parts.iter().map(|p| p[k]).sum::<f64>() / m as f64;
-        let observable_interval =
-            [0.025, 0.975].map(|p| chi_square_quantile(p, OBSERVABLE_DOF * m) / m as f64);
+        let n = self.nees.len().max(1);
+        let part_mean =
+            |part: NeesPart| self.nees.iter().map(|s| s.get(part)).sum::<f64>() / n as f64;
+        let interval = |part: NeesPart| {
+            [0.025, 0.975].map(|p| chi_square_quantile(p, part.dof() * n) / n as f64)
+        };
         AccuracyReport {
             scenario,
             from_s,
@@ -316,23 +385,24 @@ impl Errors {
             position_error_end_m: end.into(),
             distance_travelled_m: self.distance,
             drift_percent: 100.0 * horizontal / self.distance,
-            nees_mean,
-            nees_interval: interval,
-            nees_samples: n,
-            observable_nees_mean: part_mean(0),
-            observable_nees_interval: observable_interval,
-            nees_block_means: [part_mean(1), part_mean(2), part_mean(3)],
+            nees_mean: part_mean(NeesPart::Full),
+            nees_interval: interval(NeesPart::Full),
+            nees_samples: self.nees.len(),
+            observable_nees_mean: part_mean(NeesPart::Observable),
+            observable_nees_interval: interval(NeesPart::Observable),
+            nees_block_means: [
+                part_mean(NeesPart::Position),
+                part_mean(NeesPart::Velocity),
+                part_mean(NeesPart::Attitude),
+            ],
             nis_per_dof_mean: nis,
             epochs,
         }
     }
 }
 
-/// Velocity (3) and tilt (2).
-const OBSERVABLE_DOF: usize = 5;
-
-/// The observable-subset NEES and the three 3-dof block NEES, from the marginal covariances.
-fn nees_parts(filter: &Eskf, truth: &TruthSample) -> Option<[f64; 4]> {
+/// Every `NeesPart` against its marginal covariance; `None` if one is not positive definite.
+fn nees_sample(filter: &Eskf, truth: &TruthSample) -> Option<NeesSample> {
     let state = filter.state();
     let covariance = filter.covariance();
     let mut error = SVector::<f64, 9>::zeros();
@@ -341,14 +411,17 @@ fn nees_parts(filter: &Eskf, truth: &TruthSample) -> Option<[f64; 4]> {
     error
         .fixed_rows_mut::<3>(6)
         .copy_from(&(truth.q * state.q.inverse()).scaled_axis());
-    let indices = [VEL, VEL + 1, VEL + 2, ATT, ATT + 1];
-    let observable = normalised(&error, covariance, &indices)?;
-    let block = |start: usize| normalised(&error, covariance, &[start, start + 1, start + 2]);
-    Some([observable, block(POS)?, block(VEL)?, block(ATT)?])
+    let mut values = [0.0; NeesPart::ALL.len()];
+    for (value, part) in values.iter_mut().zip(NeesPart::ALL) {
+        *value = normalised(&error, covariance, part.indices())?;
+    }
+    Some(NeesSample { t: truth.t, values })
 }
 
-/// `e_S^T P_SS^-1 e_S` over the state indices `S` (below 9: position, velocity, attitude).
+/// `e_S^T P_SS^-1 e_S` over the indices `S` of the 9 states position, velocity, attitude.
 fn normalised(error: &SVector<f64, 9>, covariance: &Covariance, indices: &[usize]) -> Option<f64> {
+    // The 9 states are the first of the covariance, in the same order.
+    const _: () = assert!(POS == 0 && VEL == 3 && ATT == 6);
     let n = indices.len();
     let sub = DMatrix::from_fn(n, n, |i, j| covariance[(indices[i], indices[j])]);
     let e = DVector::from_fn(n, |i, _| error[indices[i]]);

@@ -12,6 +12,7 @@ pub mod clock;
 pub mod config;
 mod epoch;
 pub mod evaluate;
+pub mod monte_carlo;
 pub mod record;
 pub mod sources;
 
