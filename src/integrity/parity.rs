@@ -129,6 +129,11 @@ pub struct SolveTest {
     pub estimate_sigmas: [f64; 3],
     pub protection: ProtectionLevels,
     pub detected: bool,
+    /// Canonical correlation between the tests of planes `a` and `b` (indices into `planes`):
+    /// how alike a fault on one moves both statistics. Near 1 the largest-residual rule cannot
+    /// tell the two apart (0 when either plane cannot be tested).
+    #[serde(skip)]
+    pub test_correlation: DMatrix<f64>,
 }
 
 impl SolveTest {
@@ -146,6 +151,12 @@ impl SolveTest {
 
     pub fn plane(&self, id: usize) -> Option<&PlaneTest> {
         self.planes.iter().find(|plane| plane.plane == id)
+    }
+
+    /// Canonical correlation of the tests of planes `a` and `b` (plane ids), if both are here.
+    pub fn correlation(&self, a: usize, b: usize) -> Option<f64> {
+        let index = |id| self.planes.iter().position(|plane| plane.plane == id);
+        Some(self.test_correlation[(index(a)?, index(b)?)])
     }
 }
 
@@ -283,14 +294,20 @@ pub fn test_system(
     }
     let space = parity_space(system, max_condition)?;
     let redundancy = space.parity.len();
-    let statistics: Vec<(PlaneTest, f64)> = groups
+    let statistics: Vec<(PlaneTest, f64, Signature)> = groups
         .iter()
         .map(|rows| plane_statistic(&space, rows))
         .collect();
-    let tests = statistics.iter().filter(|(plane, _)| plane.dof > 0).count();
+    let tests = statistics
+        .iter()
+        .filter(|(plane, ..)| plane.dof > 0)
+        .count();
+    let test_correlation = DMatrix::from_fn(statistics.len(), statistics.len(), |a, b| {
+        canonical_correlation(&statistics[a].2, &statistics[b].2)
+    });
     let planes: Vec<PlaneTest> = statistics
         .into_iter()
-        .map(|(plane, weakest)| {
+        .map(|(plane, weakest, _)| {
             let gamma = if redundancy == 1 {
                 thresholds.sole()
             } else {
@@ -321,27 +338,56 @@ pub fn test_system(
         protection,
         estimate_sigmas,
         detected,
+        test_correlation,
     })
+}
+
+/// Unit directions in parity space along which a plane's bias moves `p` (its testable
+/// directions, whitened: `G_k v / sqrt(lambda)` for each eigenpair of `N_k`), at most two.
+type Signature = Vec<DVector<f64>>;
+
+/// Largest canonical correlation of two planes' signatures: the largest singular value of
+/// `W_a^T W_b`, 1 when some fault on one moves `p` exactly as a fault on the other.
+fn canonical_correlation(a: &Signature, b: &Signature) -> f64 {
+    if a.is_empty() || b.is_empty() {
+        return 0.0;
+    }
+    let cross = |i: usize, j: usize| a[i].dot(&b[j]);
+    // M M^T for the (up to 2 x 2) cross matrix M = W_a^T W_b.
+    let gram = [0, 1].map(|i| {
+        [0, 1].map(|k| {
+            if i >= a.len() || k >= a.len() {
+                return 0.0;
+            }
+            (0..b.len()).map(|j| cross(i, j) * cross(k, j)).sum()
+        })
+    });
+    let (eigenvalues, _) = symmetric_eigen_2(&gram, a.len());
+    eigenvalues[0].max(eigenvalues[1]).max(0.0).sqrt().min(1.0)
 }
 
 /// The plane's statistic and slopes, with `sqrt(lambda_min(N_k))` (0 when a direction is
 /// untestable); threshold and MDB need the number of tests and come after.
-fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64) {
+fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64, Signature) {
     let rows = plane.rows();
     let d = rows.len();
-    let signature = |a: usize| space.parity_map.column(rows[a.min(d - 1)]);
+    let signature_column = |a: usize| space.parity_map.column(rows[a.min(d - 1)]);
     // Entries beyond the plane's rows are computed but never read.
-    let information = [0, 1].map(|a| [0, 1].map(|b| signature(a).dot(&signature(b))));
-    let projection = [0, 1].map(|a| signature(a).dot(&space.parity));
+    let information = [0, 1].map(|a| [0, 1].map(|b| signature_column(a).dot(&signature_column(b))));
+    let projection = [0, 1].map(|a| signature_column(a).dot(&space.parity));
     let scale: f64 = rows.iter().map(|&row| space.row_information[row]).sum();
     let (eigenvalues, eigenvectors) = symmetric_eigen_2(&information, d);
     let mut statistic = 0.0;
     let mut slope_squared = Vector3::zeros();
     let mut dof = 0;
+    let mut signature = Signature::with_capacity(d);
     for j in 0..d {
         let (lambda, direction) = (eigenvalues[j], eigenvectors[j]);
         if lambda > UNTESTABLE_REDUNDANCY * scale {
             dof += 1;
+            let along_parity: DVector<f64> =
+                (0..d).map(|a| signature_column(a) * direction[a]).sum();
+            signature.push(along_parity / lambda.sqrt());
             let along = direction[0] * projection[0] + direction[1] * projection[1];
             statistic += along * along / lambda;
             let moved: Vector3<f64> = (0..d)
@@ -373,7 +419,11 @@ fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64) {
         .iter()
         .copied()
         .fold(f64::INFINITY, f64::min);
-    (plane_test, if all_testable { weakest.sqrt() } else { 0.0 })
+    (
+        plane_test,
+        if all_testable { weakest.sqrt() } else { 0.0 },
+        signature,
+    )
 }
 
 /// Eigenvalues and unit eigenvectors of the leading `d x d` (1 or 2) block of a symmetric matrix.
