@@ -462,21 +462,20 @@ fn four_planes_detect_but_cannot_isolate_five_can() {
         // planes' tests almost in line (correlation above 0.999): those are told apart by
         // noise, and `planes_a_solve_cannot_tell_apart_are_not_excluded_on_a_coin_flip`
         // covers them. Here the five are separable.
-        let (n, clean) = loop {
+        let faulty = loop {
             let n = testable_normals(&mut rng, planes, &monitor);
             let clean = monitor
                 .test(SolveKind::Displacement, &displacement(&n, &mut rng, &[]))
                 .unwrap();
-            let separable =
-                (0..planes).all(|a| (0..a).all(|b| clean.correlation(a, b).unwrap() < 0.999));
+            let faulty = displacement(&n, &mut rng, &[(1, 4.0 * clean.planes[1].mdb)]);
+            let test = monitor.test(SolveKind::Displacement, &faulty).unwrap();
+            let separable = test.detected
+                && (0..planes).all(|a| (0..a).all(|b| test.correlation(a, b).unwrap() < 0.999));
             if planes == 4 || separable {
-                break (n, clean);
+                break faulty;
             }
         };
-        let report = check_displacement(
-            &monitor,
-            &displacement(&n, &mut rng, &[(1, 4.0 * clean.planes[1].mdb)]),
-        );
+        let report = check_displacement(&monitor, &faulty);
         let expected = if planes == 4 {
             IntegrityStatus::DetectedNotIsolable
         } else {
@@ -754,16 +753,16 @@ fn test_correlation_is_one_with_itself_and_symmetric() {
     let monitor = monitor(1e-3, 1e-3);
     let mut rng = ChaCha8Rng::seed_from_u64(102);
     let n = testable_normals(&mut rng, 6, &monitor);
-    for system in [
-        rotation(&n, &mut rng, None),
-        displacement(&n, &mut rng, &[]),
-    ] {
+    // Faults large enough to fire: the correlations are kept for exclusion only.
+    let turned = rotation(&n, &mut rng, Some((0, 30f64.to_radians())));
+    for system in [turned, displacement(&n, &mut rng, &[(0, 2.0)])] {
         let kind = if system.rows() == n.len() {
             SolveKind::Displacement
         } else {
             SolveKind::Rotation
         };
         let test = monitor.test(kind, &system).unwrap();
+        assert!(test.detected, "{kind:?}");
         for a in 0..n.len() {
             assert!((test.correlation(a, a).unwrap() - 1.0).abs() < 1e-9);
             for b in 0..n.len() {
