@@ -15,6 +15,13 @@
 //! redundant row to re-test with. Displacement (one row a plane, `r = M - 3`): `M >= 5`.
 //! Rotation (two tangent rows a plane, `r = 2M - 3`): `M >= 4`. Otherwise the epoch is
 //! `DetectedNotIsolable` and not fused.
+//!
+//! Separability guard. The spans may meet in nothing but zero and still be almost aligned: when
+//! the canonical correlation of two planes' tests in a solve is near 1 (say the front wall and
+//! the door are the only planes that see x), a fault on either moves both statistics alike and
+//! which one is larger is decided by noise. The candidate is then only a tie with its rivals in
+//! that solve; another solve whose test fired and that tells them apart breaks the tie (its most
+//! severe plane among them is excluded), and if none does the epoch is `DetectedNotIsolable`.
 
 use super::config::IntegrityConfig;
 use super::parity::{test_system, SolveTest, Untestable};
@@ -23,6 +30,13 @@ use super::ConfigError;
 use crate::estimate::IntegrityStatus;
 use crate::estimation::{LinearSystem, Solution, SolveError};
 use serde::{Serialize, Serializer};
+
+/// Two planes' tests correlated at least this much in a solve are told apart there by noise
+/// rather than by the fault: with noncentrality `delta` the wrong one is larger with
+/// probability about `Phi(-delta sqrt((1 - c) / 2))`, 38 % at `delta = 14` (twice the MDB).
+/// Lower limits start refusing pairs the largest-residual rule still gets right most of the
+/// time (at 0.99, 2 % of random six-plane displacement solves with a fault at twice the MDB).
+const INSEPARABLE_CORRELATION: f64 = 0.999;
 
 /// Re-solves a solve with the given planes (ids of the epoch) left out.
 pub type Resolver<'a> = dyn FnMut(&[usize]) -> Result<Solution, SolveError> + 'a;
@@ -203,7 +217,7 @@ impl IntegrityMonitor {
                     Err(_) => return (IntegrityStatus::UnderDetermined, excluded),
                 }
             }
-            let Some(candidate) = most_suspect(&tests) else {
+            let Some(suspect) = most_suspect(&tests) else {
                 let status = if excluded.is_empty() {
                     IntegrityStatus::Ok
                 } else {
@@ -212,6 +226,9 @@ impl IntegrityMonitor {
                     }
                 };
                 return (status, excluded);
+            };
+            let Some(candidate) = separated(&tests, suspect) else {
+                return (IntegrityStatus::DetectedNotIsolable, excluded);
             };
             if excluded.len() >= self.config.max_exclusions
                 || !tests.iter().all(|test| isolable(test, candidate))
@@ -249,6 +266,49 @@ fn most_suspect(tests: &[&SolveTest]) -> Option<usize> {
         .filter_map(|test| test.most_suspect())
         .max_by(|a, b| a.severity().total_cmp(&b.severity()))
         .map(|plane| plane.plane)
+}
+
+/// The separability guard of the module documentation: the plane to exclude in place of
+/// `suspect`, or `None` when no solve can tell it from its rivals.
+fn separated(tests: &[&SolveTest], suspect: usize) -> Option<usize> {
+    let ties = |test: &SolveTest| -> Vec<usize> {
+        test.planes
+            .iter()
+            .map(|plane| plane.plane)
+            .filter(|&other| other != suspect)
+            .filter(|&other| {
+                test.correlation(suspect, other)
+                    .is_some_and(|c| c >= INSEPARABLE_CORRELATION)
+            })
+            .collect()
+    };
+    let mut tied: Vec<usize> = tests.iter().flat_map(|test| ties(test)).collect();
+    if tied.is_empty() {
+        return Some(suspect);
+    }
+    tied.push(suspect);
+    tests
+        .iter()
+        .filter(|test| test.detected)
+        .find(|test| tells_apart(test, &tied))
+        .and_then(|test| {
+            tied.iter()
+                .filter_map(|&id| test.plane(id))
+                .max_by(|a, b| a.severity().total_cmp(&b.severity()))
+                .map(|plane| plane.plane)
+        })
+}
+
+/// Whether every pair of `planes` is in `test`, with tests correlated below the guard's limit.
+fn tells_apart(test: &SolveTest, planes: &[usize]) -> bool {
+    planes.iter().enumerate().all(|(i, &a)| {
+        planes[i + 1..].iter().all(|&b| {
+            a == b
+                || test
+                    .correlation(a, b)
+                    .is_some_and(|c| c < INSEPARABLE_CORRELATION)
+        })
+    })
 }
 
 /// The isolation rule of the module documentation.

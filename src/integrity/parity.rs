@@ -129,6 +129,14 @@ pub struct SolveTest {
     pub estimate_sigmas: [f64; 3],
     pub protection: ProtectionLevels,
     pub detected: bool,
+    /// Each plane's testable directions in the parity space, whitened (orthonormal columns
+    /// `G_k u`), side by side; only exclusion needs them, so they are kept only when the test
+    /// fired (empty otherwise).
+    #[serde(skip)]
+    signatures: DMatrix<f64>,
+    /// Per plane (as in `planes`), its first column in `signatures` and how many it has.
+    #[serde(skip)]
+    signature_columns: Vec<(usize, usize)>,
 }
 
 impl SolveTest {
@@ -146,6 +154,33 @@ impl SolveTest {
 
     pub fn plane(&self, id: usize) -> Option<&PlaneTest> {
         self.planes.iter().find(|plane| plane.plane == id)
+    }
+
+    /// Canonical correlation of the tests of planes `a` and `b` (plane ids), if both are here
+    /// and the test fired: how alike a fault on one moves both statistics (the largest
+    /// singular value of `W_a^T W_b`; 0 when either plane cannot be tested). Near 1 the
+    /// largest-residual rule cannot tell the two apart.
+    pub fn correlation(&self, a: usize, b: usize) -> Option<f64> {
+        let columns = |id| {
+            let index = self.planes.iter().position(|plane| plane.plane == id)?;
+            self.signature_columns.get(index).copied()
+        };
+        let ((a_first, a_count), (b_first, b_count)) = (columns(a)?, columns(b)?);
+        if a_count == 0 || b_count == 0 {
+            return Some(0.0);
+        }
+        let column = |c: usize| self.signatures.column(c);
+        let cross = |i: usize, j: usize| column(a_first + i).dot(&column(b_first + j));
+        let square = [0, 1].map(|i| {
+            [0, 1].map(|k| {
+                if i >= a_count || k >= a_count {
+                    return 0.0;
+                }
+                (0..b_count).map(|j| cross(i, j) * cross(k, j)).sum()
+            })
+        });
+        let (eigenvalues, _) = symmetric_eigen_2(&square, a_count);
+        Some(eigenvalues[0].max(eigenvalues[1]).max(0.0).sqrt().min(1.0))
     }
 }
 
@@ -283,14 +318,18 @@ pub fn test_system(
     }
     let space = parity_space(system, max_condition)?;
     let redundancy = space.parity.len();
-    let statistics: Vec<(PlaneTest, f64)> = groups
+    let statistics: Vec<(PlaneTest, f64, Signature)> = groups
         .iter()
         .map(|rows| plane_statistic(&space, rows))
         .collect();
-    let tests = statistics.iter().filter(|(plane, _)| plane.dof > 0).count();
+    let tests = statistics
+        .iter()
+        .filter(|(plane, ..)| plane.dof > 0)
+        .count();
+    let signatures: Vec<Signature> = statistics.iter().map(|(.., s)| *s).collect();
     let planes: Vec<PlaneTest> = statistics
         .into_iter()
-        .map(|(plane, weakest)| {
+        .map(|(plane, weakest, _)| {
             let gamma = if redundancy == 1 {
                 thresholds.sole()
             } else {
@@ -307,6 +346,11 @@ pub fn test_system(
     };
     let residuals = &system.y - &system.h * (&space.gain * &system.y);
     let detected = chi_square > chi_square_threshold || planes.iter().any(PlaneTest::fired);
+    let (signatures, signature_columns) = if detected {
+        whitened_signatures(&space, &signatures)
+    } else {
+        (DMatrix::zeros(0, 0), Vec::new())
+    };
     let estimate_sigmas: [f64; 3] = space.covariance.diagonal().map(f64::sqrt).into();
     let protection = protection_levels(&planes, &estimate_sigmas, thresholds);
     Ok(SolveTest {
@@ -321,27 +365,70 @@ pub fn test_system(
         protection,
         estimate_sigmas,
         detected,
+        signatures,
+        signature_columns,
     })
+}
+
+/// A plane's testable directions, whitened: with `N_k = V diag(lambda) V^T`, the columns
+/// `u = v / sqrt(lambda)` of its testable eigenpairs, so that `G_k u` are orthonormal
+/// directions of the parity space (at most two).
+#[derive(Debug, Clone, Copy)]
+struct Signature {
+    rows: [usize; 2],
+    directions: [[f64; 2]; 2],
+    count: usize,
+}
+
+/// The parity directions `G_k u` of every plane's testable directions, side by side, with each
+/// plane's first column and count.
+fn whitened_signatures(
+    space: &ParitySpace,
+    signatures: &[Signature],
+) -> (DMatrix<f64>, Vec<(usize, usize)>) {
+    let total = signatures.iter().map(|s| s.count).sum();
+    let mut columns = DMatrix::zeros(space.parity_map.nrows(), total);
+    let mut spans = Vec::with_capacity(signatures.len());
+    let mut next = 0;
+    for signature in signatures {
+        spans.push((next, signature.count));
+        for direction in &signature.directions[..signature.count] {
+            let mut column = columns.column_mut(next);
+            // A one-row plane's second entry is zero (and its two rows are the same).
+            for (row, weight) in signature.rows.iter().zip(direction) {
+                column.axpy(*weight, &space.parity_map.column(*row), 1.0);
+            }
+            next += 1;
+        }
+    }
+    (columns, spans)
 }
 
 /// The plane's statistic and slopes, with `sqrt(lambda_min(N_k))` (0 when a direction is
 /// untestable); threshold and MDB need the number of tests and come after.
-fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64) {
+fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64, Signature) {
     let rows = plane.rows();
     let d = rows.len();
-    let signature = |a: usize| space.parity_map.column(rows[a.min(d - 1)]);
+    let parity_column = |a: usize| space.parity_map.column(rows[a.min(d - 1)]);
     // Entries beyond the plane's rows are computed but never read.
-    let information = [0, 1].map(|a| [0, 1].map(|b| signature(a).dot(&signature(b))));
-    let projection = [0, 1].map(|a| signature(a).dot(&space.parity));
+    let information = [0, 1].map(|a| [0, 1].map(|b| parity_column(a).dot(&parity_column(b))));
+    let projection = [0, 1].map(|a| parity_column(a).dot(&space.parity));
     let scale: f64 = rows.iter().map(|&row| space.row_information[row]).sum();
     let (eigenvalues, eigenvectors) = symmetric_eigen_2(&information, d);
     let mut statistic = 0.0;
     let mut slope_squared = Vector3::zeros();
     let mut dof = 0;
+    let mut signature = Signature {
+        rows: [rows[0], rows[d - 1]],
+        directions: [[0.0; 2]; 2],
+        count: 0,
+    };
     for j in 0..d {
         let (lambda, direction) = (eigenvalues[j], eigenvectors[j]);
         if lambda > UNTESTABLE_REDUNDANCY * scale {
             dof += 1;
+            signature.directions[signature.count] = direction.map(|v| v / lambda.sqrt());
+            signature.count += 1;
             let along = direction[0] * projection[0] + direction[1] * projection[1];
             statistic += along * along / lambda;
             let moved: Vector3<f64> = (0..d)
@@ -373,7 +460,11 @@ fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64) {
         .iter()
         .copied()
         .fold(f64::INFINITY, f64::min);
-    (plane_test, if all_testable { weakest.sqrt() } else { 0.0 })
+    (
+        plane_test,
+        if all_testable { weakest.sqrt() } else { 0.0 },
+        signature,
+    )
 }
 
 /// Eigenvalues and unit eigenvectors of the leading `d x d` (1 or 2) block of a symmetric matrix.

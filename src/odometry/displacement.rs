@@ -5,12 +5,15 @@
 //! `dR` is the position of body j's origin in body-i axes. When the rotation C = C_j^i is known,
 //! the row's normal is the mean of `n_i` and `C n_j` (both measure the same direction), which
 //! halves the normal-error variance; otherwise it is `n_i` as in the paper. The normal-error term
-//! is evaluated at the prior `dR`, then once more at the first estimate. Rows are tagged with
-//! the index of their match.
+//! is evaluated at the prior `dR` only, never at an estimate from these same rows: a moving
+//! plane drags that estimate (by metres along an axis the other planes barely see), and the
+//! term evaluated there would inflate every row's variance with it, hiding the very bias the
+//! integrity test looks for and making the solution's covariance meaningless (measured on
+//! office-door, docs/figures.md section 4). Rows are tagged with the index of their match.
 
 use super::matching::PlaneMatch;
 use super::planes::Plane;
-use crate::estimation::{weakest_directions, LinearSystem, Solution, SolveError};
+use crate::estimation::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
 
 struct PlaneRow {
@@ -70,7 +73,6 @@ pub fn solve_displacement(
                 )
             })
     };
-    let first_estimate = weighted_estimate(active().map(|(_, row)| row), prior_displacement)?;
     let planes = active().count();
     let mut system = LinearSystem {
         h: DMatrix::zeros(planes, 3),
@@ -79,35 +81,14 @@ pub fn solve_displacement(
         plane_of_row: Vec::with_capacity(planes),
     };
     for (row, (k, plane)) in active().enumerate() {
+        let variance = plane.variance(prior_displacement);
+        if !variance.is_finite() || variance <= 0.0 {
+            return Err(SolveError::BadCovariance);
+        }
         system.h.row_mut(row).copy_from(&plane.normal.transpose());
         system.y[row] = plane.y;
-        system.r[(row, row)] = plane.variance(&first_estimate);
+        system.r[(row, row)] = variance;
         system.plane_of_row.push(k);
     }
     system.solve()
-}
-
-/// Allocation-free first pass with the normal-error term taken at the prior.
-fn weighted_estimate(
-    rows: impl Iterator<Item = PlaneRow>,
-    prior_displacement: &Vector3<f64>,
-) -> Result<Vector3<f64>, SolveError> {
-    let mut information = Matrix3::zeros();
-    let mut gradient = Vector3::zeros();
-    for row in rows {
-        let weight = 1.0 / row.variance(prior_displacement);
-        if !weight.is_finite() || weight <= 0.0 {
-            return Err(SolveError::BadCovariance);
-        }
-        information += row.normal * row.normal.transpose() * weight;
-        gradient += row.normal * (row.y * weight);
-    }
-    let unobservable = weakest_directions(&information);
-    if !unobservable.is_empty() {
-        return Err(SolveError::UnderDetermined { unobservable });
-    }
-    Ok(information
-        .cholesky()
-        .ok_or(SolveError::BadCovariance)?
-        .solve(&gradient))
 }
