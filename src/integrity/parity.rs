@@ -170,15 +170,14 @@ impl SolveTest {
             return Some(0.0);
         }
         let column = |c: usize| self.signatures.column(c);
-        let cross = |i: usize, j: usize| column(a_first + i).dot(&column(b_first + j));
-        let square = [0, 1].map(|i| {
-            [0, 1].map(|k| {
-                if i >= a_count || k >= a_count {
-                    return 0.0;
-                }
-                (0..b_count).map(|j| cross(i, j) * cross(k, j)).sum()
-            })
-        });
+        let mut cross = [[0.0; 2]; 2];
+        for (i, row) in cross.iter_mut().enumerate().take(a_count) {
+            for (j, entry) in row.iter_mut().enumerate().take(b_count) {
+                *entry = column(a_first + i).dot(&column(b_first + j));
+            }
+        }
+        let square =
+            [0, 1].map(|i| [0, 1].map(|k| cross[i][0] * cross[k][0] + cross[i][1] * cross[k][1]));
         let (eigenvalues, _) = symmetric_eigen_2(&square, a_count);
         Some(eigenvalues[0].max(eigenvalues[1]).max(0.0).sqrt().min(1.0))
     }
