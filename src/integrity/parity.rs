@@ -245,13 +245,19 @@ pub fn parity_space(system: &LinearSystem, max_condition: f64) -> Result<ParityS
     if m <= 3 {
         return Err(Untestable::NoRedundancy { rows: m });
     }
-    let cholesky = system
-        .r
-        .clone()
-        .cholesky()
-        .ok_or(Untestable::BadCovariance)?;
-    let square_root = cholesky.unpack();
-    let whitening = lower_triangular_inverse(&square_root);
+    let (square_root, whitening) = match block_square_root(system) {
+        Some(factors) => factors,
+        None => {
+            let cholesky = system
+                .r
+                .clone()
+                .cholesky()
+                .ok_or(Untestable::BadCovariance)?;
+            let square_root = cholesky.unpack();
+            let whitening = lower_triangular_inverse(&square_root);
+            (square_root, whitening)
+        }
+    };
     let whitened_h = &whitening * &system.h;
     let qr = whitened_h.qr();
     let r1: Matrix3<f64> = qr.r().fixed_view::<3, 3>(0, 0).into();
@@ -284,6 +290,47 @@ pub fn parity_space(system: &LinearSystem, max_condition: f64) -> Result<ParityS
         gain,
         condition,
     })
+}
+
+/// The Cholesky factor of R and its inverse when R only correlates the rows of one plane (the
+/// odometer's solves: one row or two tangent rows per plane), block by block instead of by a
+/// dense factorisation and inversion: half the work of a test. `None` (the dense path decides)
+/// when R couples planes or a block is not positive definite.
+fn block_square_root(system: &LinearSystem) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    let m = system.rows();
+    let plane = &system.plane_of_row;
+    for j in 0..m {
+        for i in j + 1..m {
+            if plane[i] != plane[j] && system.r[(i, j)] != 0.0 {
+                return None;
+            }
+        }
+    }
+    let (mut square_root, mut inverse) = (DMatrix::zeros(m, m), DMatrix::zeros(m, m));
+    for rows in group_rows(system).ok()? {
+        let first = rows.rows[0];
+        let diagonal = system.r[(first, first)];
+        if diagonal <= 0.0 {
+            return None;
+        }
+        let l00 = diagonal.sqrt();
+        square_root[(first, first)] = l00;
+        inverse[(first, first)] = 1.0 / l00;
+        if rows.count == 2 {
+            let second = rows.rows[1];
+            let l10 = system.r[(second, first)] / l00;
+            let rest = system.r[(second, second)] - l10 * l10;
+            if rest <= 0.0 {
+                return None;
+            }
+            let l11 = rest.sqrt();
+            square_root[(second, first)] = l10;
+            square_root[(second, second)] = l11;
+            inverse[(second, first)] = -l10 / (l00 * l11);
+            inverse[(second, second)] = 1.0 / l11;
+        }
+    }
+    Some((square_root, inverse))
 }
 
 /// Inverse of a lower-triangular matrix with a positive diagonal (a Cholesky factor), by forward
@@ -503,4 +550,36 @@ fn residual_sigmas(system: &LinearSystem, covariance: &Matrix3<f64>) -> Vec<f64>
             (system.r[(i, i)] - explained).max(0.0).sqrt()
         })
         .collect()
+}
+
+#[cfg(test)]
+mod block_tests {
+    use super::*;
+    use nalgebra::DVector;
+
+    /// Rows 0, 2 of plane 7 (interleaved with plane 3's row 1), plane 5 on rows 3 and 4.
+    fn system(coupling: f64) -> LinearSystem {
+        let mut r = DMatrix::from_diagonal(&DVector::from_vec(vec![4e-4, 1e-4, 2e-4, 3e-4, 5e-4]));
+        for (i, j, v) in [(2, 0, 1.5e-4), (4, 3, -2e-4), (1, 0, coupling)] {
+            r[(i, j)] = v;
+            r[(j, i)] = v;
+        }
+        LinearSystem {
+            h: DMatrix::from_fn(5, 3, |i, j| ((i * 3 + j) as f64).sin()),
+            y: DVector::zeros(5),
+            r,
+            plane_of_row: vec![7, 3, 7, 5, 5],
+        }
+    }
+
+    #[test]
+    fn block_factors_equal_the_dense_cholesky_and_coupled_planes_fall_back() {
+        let system = system(0.0);
+        let (square_root, inverse) = block_square_root(&system).unwrap();
+        let dense = system.r.clone().cholesky().unwrap().unpack();
+        assert!((&square_root - &dense).norm() < 1e-15);
+        let identity = &inverse * &square_root;
+        assert!((identity - DMatrix::<f64>::identity(5, 5)).norm() < 1e-12);
+        assert!(block_square_root(&self::system(1e-5)).is_none());
+    }
 }
