@@ -44,6 +44,13 @@ pub fn nis<const N: usize>(
     Some(covariance.cholesky()?.solve(innovation).dot(innovation))
 }
 
+/// 95 % interval of the average of `count` independent NEES values of `dof` degrees of
+/// freedom each: `chi2(count * dof) / count`.
+pub fn mean_nees_interval(dof: usize, count: usize) -> [f64; 2] {
+    let count = count.max(1);
+    [0.025, 0.975].map(|p| chi_square_quantile(p, dof * count) / count as f64)
+}
+
 /// `x` such that a chi-square variable with `dof` degrees of freedom is below `x` with
 /// `probability`. Infinite for probability 1 (a disabled gate).
 pub fn chi_square_quantile(probability: f64, dof: usize) -> f64 {

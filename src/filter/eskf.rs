@@ -633,20 +633,28 @@ impl Eskf {
         self.history.pose_at(t)
     }
 
-    /// The pose at `t` from the history, or, for a `t` up to `epoch_time_tolerance_s` after the
-    /// newest IMU sample, extrapolated with the current velocity and rate: a scan pair can be
-    /// complete before the IMU sample that covers its reference time has been read, and
-    /// deskew extrapolates the same way.
-    fn pose_or_ahead(&self, t: f64) -> Option<Pose> {
+    /// The pose at `t` from the history or, for a `t` after the newest IMU sample, the newest
+    /// pose carried on with the current velocity and body rate (what deskew uses for beams read
+    /// after the IMU). `None` before the history or before any IMU sample.
+    pub fn pose_at_or_after(&self, t: f64) -> Option<Pose> {
         if let Some(pose) = self.history.pose_at(t) {
             return Some(pose);
         }
         let ahead = t - self.t?;
-        (ahead > 0.0 && ahead <= self.config.epoch_time_tolerance_s).then(|| Pose {
+        (ahead > 0.0).then(|| Pose {
             t,
             p: self.state.p + self.state.v * ahead,
             q: self.state.q * UnitQuaternion::from_scaled_axis(self.angular_rate * ahead),
         })
+    }
+
+    /// `pose_at_or_after`, at most `epoch_time_tolerance_s` ahead: a scan pair can be complete
+    /// before the IMU sample that covers its reference time has been read.
+    fn pose_or_ahead(&self, t: f64) -> Option<Pose> {
+        let ahead = t - self.t?;
+        (ahead <= self.config.epoch_time_tolerance_s)
+            .then(|| self.pose_at_or_after(t))
+            .flatten()
     }
 
     /// The relative pose from `t_ref` to `t` predicted by the filter, as the odometer's prior.

@@ -2,7 +2,7 @@
 //! against the previous epoch under the filter's prior, test integrity, and fuse what passed
 //! against the clone of the previous epoch's pose; then clone the pose at this epoch.
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
 
 use super::anchor::Anchored;
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
@@ -272,12 +272,10 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
 }
 
 /// The filter's poses for deskewing: its history, extrapolated with the current velocity and
-/// rate for beams after the newest IMU sample.
+/// rate for beams after the newest IMU sample (`Eskf::pose_at_or_after`).
 struct MotionModel<'a> {
     filter: &'a Eskf,
     newest: Pose,
-    velocity: Vector3<f64>,
-    body_rate: Vector3<f64>,
 }
 
 impl<'a> MotionModel<'a> {
@@ -294,27 +292,15 @@ impl<'a> MotionModel<'a> {
                 p: state.p,
                 q: state.q,
             },
-            velocity: state.v,
-            body_rate: filter.estimate().angular_rate,
         })
     }
 
+    /// Before the history (older than pose_history_s) the oldest pose would do no better than
+    /// the newest, and the epoch will restart the chain anyway.
     fn pose(&self, t: f64) -> Pose {
-        if let Some(pose) = self.filter.pose_at(t) {
-            return pose;
-        }
-        // Before the history (older than pose_history_s): the oldest would do no better than
-        // the newest, and the epoch will restart the chain anyway.
-        let dt = if t > self.newest.t {
-            t - self.newest.t
-        } else {
-            0.0
-        };
-        Pose {
-            t,
-            p: self.newest.p + self.velocity * dt,
-            q: self.newest.q * UnitQuaternion::from_scaled_axis(self.body_rate * dt),
-        }
+        self.filter
+            .pose_at_or_after(t)
+            .unwrap_or(Pose { t, ..self.newest })
     }
 }
 

@@ -9,7 +9,7 @@ use super::record::{EpochOutcome, EpochRecord};
 use super::{Fusion, FusionError, FusionSettings};
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::state::{Covariance, ATT, POS, VEL};
-use crate::filter::{chi_square_quantile, Eskf};
+use crate::filter::{mean_nees_interval, Eskf};
 use crate::odometry::ScannerSetup;
 use crate::sensors::TruthSample;
 use crate::sim::{Scenario, ScenarioError, SimEvent, Simulator};
@@ -370,9 +370,7 @@ impl Errors {
         let n = self.nees.len().max(1);
         let part_mean =
             |part: NeesPart| self.nees.iter().map(|s| s.get(part)).sum::<f64>() / n as f64;
-        let interval = |part: NeesPart| {
-            [0.025, 0.975].map(|p| chi_square_quantile(p, part.dof() * n) / n as f64)
-        };
+        let interval = |part: NeesPart| mean_nees_interval(part.dof(), n);
         AccuracyReport {
             scenario,
             from_s,

@@ -15,7 +15,7 @@ use serde::Serialize;
 
 use super::evaluate::{run_scenario_recorded, EvaluationError, NeesPart, NeesSample};
 use super::FusionSettings;
-use crate::filter::{chi_square_quantile, FilterConfig};
+use crate::filter::{mean_nees_interval, FilterConfig};
 use crate::sim::Scenario;
 use crate::sim::TriadErrors;
 
@@ -206,10 +206,7 @@ fn common_times(series: &[Vec<NeesSample>]) -> Result<usize, MonteCarloError> {
 pub fn nees_statistic(series: &[Vec<NeesSample>], times: usize, part: NeesPart) -> NeesStatistic {
     let runs = series.len().max(1);
     let dof = part.dof();
-    let quantiles = |total_dof: usize, count: usize| {
-        [0.025, 0.975].map(|p| chi_square_quantile(p, total_dof) / count.max(1) as f64)
-    };
-    let per_time_interval = quantiles(runs * dof, runs);
+    let per_time_interval = mean_nees_interval(dof, runs);
     let averages: Vec<f64> = (0..times)
         .map(|k| series.iter().map(|run| run[k].get(part)).sum::<f64>() / runs as f64)
         .collect();
@@ -221,7 +218,7 @@ pub fn nees_statistic(series: &[Vec<NeesSample>], times: usize, part: NeesPart) 
         part,
         dof,
         mean: averages.iter().sum::<f64>() / times.max(1) as f64,
-        interval: quantiles(runs * times.max(1) * dof, runs * times.max(1)),
+        interval: mean_nees_interval(dof, runs * times.max(1)),
         per_time_interval,
         fraction_inside: fraction(&|a| (low..=high).contains(&a)),
         fraction_above: fraction(&|a| a > high),
