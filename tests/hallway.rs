@@ -37,6 +37,14 @@ fn pitch_only(mut scenario: Scenario) -> Scenario {
     scenario
 }
 
+/// The door and the board held still: what the filter does when nothing in view moves.
+fn still(mut scenario: Scenario) -> Scenario {
+    for patch in &mut scenario.scene.patches {
+        patch.motion = Default::default();
+    }
+    scenario
+}
+
 /// The defaults, but for the stationary start (40 s on the hover, 10 s on the flight).
 fn settings(stationary_start_s: f64) -> FusionSettings {
     let mut settings = FusionSettings::default();
@@ -366,6 +374,24 @@ fn monte_carlo_nees_hover_10hz_scenario_unit() {
     assert_mean_below(&report, NeesPart::Full, 1.6);
     assert_mean_below(&report, NeesPart::Position, 1.6);
     assert_mean_below(&report, NeesPart::Velocity, 1.3);
+}
+
+/// The 10 Hz optimism of the study above comes from the moving door and board (planes on them
+/// that move less than the minimum detectable bias in 0.1 s pass integrity): with them still,
+/// no part is ever above its interval (docs/accuracy.md, "NEES").
+#[test]
+#[ignore]
+fn monte_carlo_nees_hover_10hz_door_and_board_still() {
+    let report = monte_carlo(
+        "hallway-hover 10 Hz, Monte Carlo, scenario unit, door and board still",
+        &still(scenario("hallway-hover", None, Some(3))),
+        &at_10hz(settings(40.0)),
+        20,
+        UnitErrors::AsScenario,
+    );
+    for part in NeesPart::ALL {
+        assert_not_optimistic(&report, part, 0.02);
+    }
 }
 
 /// The Monte Carlo study in small: three seeds of a short hover whose motion starts right
