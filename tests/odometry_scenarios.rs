@@ -179,3 +179,38 @@ fn a_side_wall_seen_by_crossing_lines_is_found_with_honest_sigmas() {
         assert!((lowest..=3.0).contains(&ratio), "{table}");
     }
 }
+
+/// docs/accuracy.md, "Plane sigmas on the hallway": mid-hover, the floor's and the left wall's
+/// predicted sigmas match their scatter, but the cabinet's small faces err 1.2 to 1.6 times more
+/// than predicted. Its -x face is the hover's main along-track observer, hence the
+/// displacement's along-track excess in `tests/odometry_noise.rs`.
+#[test]
+#[ignore = "release-mode study, about 1 s: run with --ignored --nocapture"]
+fn hallway_planes_mid_hover_floor_and_wall_honest_cabinet_faces_not() {
+    let mut scenario = Scenario::builtin("hallway-hover").unwrap();
+    for patch in &mut scenario.scene.patches {
+        patch.motion = Default::default();
+    }
+    for t in [45.0, 60.0] {
+        let table = ladar_odometer::study::plane_sigma_table(
+            &scenario,
+            &OdometryConfig::default(),
+            t,
+            1000,
+            1,
+        )
+        .unwrap();
+        println!("{table}");
+        let row = |name: &str| table.rows.iter().find(|r| r.plane == name).unwrap();
+        for surface in ["floor", "left-wall"] {
+            for ratio in row(surface).ratios() {
+                assert!((0.9..1.15).contains(&ratio), "{surface}: {table}");
+            }
+        }
+        let [normal, _, _, rho] = row("cabinet.-x").ratios();
+        assert!(
+            normal < 0.85 && rho < 0.85,
+            "the cabinet's sigmas are honest now: update docs/accuracy.md. {table}"
+        );
+    }
+}
