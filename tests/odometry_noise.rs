@@ -79,9 +79,10 @@ struct NoiseFigures {
     filter: AccuracyReport,
 }
 
-/// Seconds into each swing (0 s closed, half a period open) within which the door is within
-/// 2.5 deg of closed and turns at most 5 deg/s: as it starts to open, and as it closes.
-const DOOR_ENDS: [(f64, f64); 2] = [(0.5, 1.0), (18.0, 18.5)];
+/// Windows of each 19 s swing, seconds after it starts (negative: before it ends), within which
+/// the door is within 2.5 deg of closed and turns at most 5 deg/s: as it starts to open, and
+/// as it closes.
+const DOOR_ENDS: [(f64, f64); 2] = [(0.5, 1.0), (-1.0, -0.5)];
 
 const WINDOW: usize = 5;
 
@@ -164,7 +165,12 @@ fn door_swing(scenario: &Scenario) -> (f64, f64, f64) {
 }
 
 fn door_end_bias(poses: &[Fused], (start_s, period_s, end_s): (f64, f64, f64)) -> [f64; 2] {
-    DOOR_ENDS.map(|(from, to)| {
+    DOOR_ENDS.map(|window| {
+        let (from, to) = if window.0 < 0.0 {
+            (period_s + window.0, period_s + window.1)
+        } else {
+            window
+        };
         // Poses whose interval overlaps the window.
         let within = |pose: &&Fused| {
             let phase = |t: f64| (t - start_s).rem_euclid(period_s);
