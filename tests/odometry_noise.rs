@@ -79,7 +79,7 @@ struct NoiseFigures {
     filter: AccuracyReport,
 }
 
-/// Windows of each 19 s swing, seconds after it starts (negative: before it ends), within which
+/// Windows of each swing, seconds after it starts (negative: before it ends), within which
 /// the door is within 2.5 deg of closed and turns at most 5 deg/s: as it starts to open, and
 /// as it closes.
 const DOOR_ENDS: [(f64, f64); 2] = [(0.5, 1.0), (-1.0, -0.5)];
