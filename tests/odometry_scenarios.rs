@@ -180,13 +180,14 @@ fn a_side_wall_seen_by_crossing_lines_is_found_with_honest_sigmas() {
     }
 }
 
-/// docs/accuracy.md, "Plane sigmas on the hallway": mid-hover, the floor's and the left wall's
-/// predicted sigmas match their scatter, but the cabinet's small faces err 1.2 to 1.6 times more
-/// than predicted. Its -x face is the hover's main along-track observer, hence the
-/// displacement's along-track excess in `tests/odometry_noise.rs`.
+/// docs/accuracy.md, "Plane sigmas on the hallway": mid-hover, every surface's predicted sigmas
+/// match its scatter, the cabinet's small faces as well as the floor and the long wall. They did
+/// not while split points wandered past corners and fits regressed on noisy abscissae: the
+/// cabinet's faces then erred 1.2 to 1.6 times more than predicted, with a 1-2 mm distance bias
+/// and 3 % of its planes beyond 6 sigma.
 #[test]
 #[ignore = "release-mode study, about 1 s: run with --ignored --nocapture"]
-fn hallway_planes_mid_hover_floor_and_wall_honest_cabinet_faces_not() {
+fn hallway_planes_mid_hover_have_honest_sigmas_and_no_distance_bias() {
     let mut scenario = Scenario::builtin("hallway-hover").unwrap();
     for patch in &mut scenario.scene.patches {
         patch.motion = Default::default();
@@ -201,16 +202,21 @@ fn hallway_planes_mid_hover_floor_and_wall_honest_cabinet_faces_not() {
         )
         .unwrap();
         println!("{table}");
-        let row = |name: &str| table.rows.iter().find(|r| r.plane == name).unwrap();
-        for surface in ["floor", "left-wall"] {
-            for ratio in row(surface).ratios() {
+        for surface in ["floor", "left-wall", "cabinet.-x", "cabinet.+y"] {
+            let row = table.rows.iter().find(|r| r.plane == surface).unwrap();
+            assert!(
+                row.found >= 990 && row.gross_errors * 100 < row.found,
+                "{surface}: {table}"
+            );
+            for ratio in row.ratios() {
                 assert!((0.9..1.15).contains(&ratio), "{surface}: {table}");
             }
+            // Four standard errors of the mean.
+            let bias_limit = 4.0 * row.measured_rho_mm / (row.found as f64).sqrt();
+            assert!(
+                row.mean_rho_error_mm.abs() < bias_limit,
+                "{surface}: {table}"
+            );
         }
-        let [normal, _, _, rho] = row("cabinet.-x").ratios();
-        assert!(
-            normal < 0.85 && rho < 0.85,
-            "the cabinet's sigmas are honest now: update docs/accuracy.md. {table}"
-        );
     }
 }

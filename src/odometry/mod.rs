@@ -486,6 +486,24 @@ impl Odometer {
 }
 
 /// Orthonormal basis (3x2) of the plane perpendicular to the unit vector `n`.
+/// Readings whose beam meets a surface at a smaller cosine are not slid onto it: along a
+/// grazing beam the slide would move them further than their noise.
+const MIN_SLIDE_COSINE: f64 = 0.1;
+
+/// A reading `height` off a plane of normal `normal`, slid along its beam onto that plane.
+/// Ranging noise moves a reading along its beam, so where the beam meets the surface carries
+/// none of it, while the reading's own position along the surface does at oblique incidence,
+/// correlated with its offset: fits that regress offsets on it tilt towards the beams (errors
+/// in variables).
+fn slid_along_beam(beam: &Beam, height: f64, normal: &Vector3<f64>) -> Vector3<f64> {
+    let cosine = normal.dot(&beam.direction);
+    if cosine.abs() < MIN_SLIDE_COSINE {
+        beam.body
+    } else {
+        beam.body - beam.direction * (height / cosine)
+    }
+}
+
 pub(crate) fn tangent_basis(n: &Vector3<f64>) -> Matrix3x2<f64> {
     let helper = if n.x.abs() < 0.6 {
         Vector3::x()

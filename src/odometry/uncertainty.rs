@@ -39,7 +39,7 @@ pub struct LineSample<'a> {
 }
 
 impl LineSample<'_> {
-    fn beams(&self) -> &[Beam] {
+    pub(super) fn beams(&self) -> &[Beam] {
         &self.beams[self.segment.first..self.segment.end]
     }
 
