@@ -7,8 +7,8 @@
 //! Discretised as `F = I + A dt` (first order; at 100-1000 Hz the neglected `A^2 dt^2 / 2`
 //! terms are below 1e-4 of the kept ones) and `Q = diag(q) dt` from the noise densities.
 //! `A` has only five non-zero 3x3 blocks, so `F P F^T` is applied block-wise on the fixed
-//! 27x27 augmented covariance: the clone columns are carried along, which is what keeps the
-//! cross-covariance with the cloned pose right.
+//! 33x33 augmented covariance: the clone and carried-noise columns are carried along, which is
+//! what keeps their cross-covariance with the current state right.
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
@@ -206,8 +206,8 @@ mod tests {
         ProcessNoise::new(&config).add_to(&mut expected, inc.dt);
         assert!((p - expected).norm() < 1e-12 * expected.norm());
         assert_eq!(p, p.transpose(), "the mirrored half must match bit for bit");
-        // The clone block itself is untouched by propagation.
-        let clone = p.fixed_view::<6, 6>(ERROR_STATES, ERROR_STATES);
-        assert_eq!(clone, p0.fixed_view::<6, 6>(ERROR_STATES, ERROR_STATES));
+        // The clone and carried-noise block itself is untouched by propagation.
+        let clone = p.fixed_view::<12, 12>(ERROR_STATES, ERROR_STATES);
+        assert_eq!(clone, p0.fixed_view::<12, 12>(ERROR_STATES, ERROR_STATES));
     }
 }

@@ -9,10 +9,10 @@ use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::history::{Pose, PoseHistory};
-use super::relative_pose::RelativePose;
+use super::relative_pose::{CarriedNoise, RelativePose};
 use super::state::{
-    Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, CLONE_ATT, CLONE_POS, ERROR_STATES,
-    GYRO_BIAS, GYRO_SCALE, POS, VEL,
+    Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, CARRIED, CLONE_ATT,
+    CLONE_POS, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS, VEL,
 };
 use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
@@ -165,6 +165,8 @@ pub struct Eskf {
     state: NominalState,
     covariance: Covariance,
     clone: Option<Pose>,
+    /// The reference epoch's noise in the last fused relative pose, while it is a state.
+    carried: Option<CarriedNoise>,
     t: Option<f64>,
     t_start: Option<f64>,
     previous: Option<ImuSample>,
@@ -194,6 +196,7 @@ impl Eskf {
             state: NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros()),
             covariance,
             clone: None,
+            carried: None,
             t: None,
             t_start: None,
             previous: None,
@@ -449,7 +452,7 @@ impl Eskf {
         let p = &mut self.covariance;
         for (clone_at, source) in [(CLONE_POS, POS), (CLONE_ATT, ATT)] {
             for k in 0..3 {
-                for column in 0..ERROR_STATES {
+                for column in (0..ERROR_STATES).chain(CARRIED..AUGMENTED) {
                     let value = p[(source + k, column)];
                     p[(clone_at + k, column)] = value;
                     p[(column, clone_at + k)] = value;
@@ -517,11 +520,12 @@ impl Eskf {
                 let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
                 let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
                 (
-                    bridged.cloned_rows(&clone, &self.state),
+                    bridged.cloned_rows(&clone, &self.state, self.carried.take().as_ref()),
                     UpdateKind::RelativePoseCloned,
                 )
             }
             RelativePoseUpdate::Velocity => {
+                self.carried = None;
                 let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
                 (
                     bridged.velocity_rows(
@@ -568,6 +572,8 @@ impl Eskf {
             }
             return Ok(report);
         };
+        let block =
+            |at: usize| Vector3::new(correction[at], correction[at + 1], correction[at + 2]);
         let next = self.state.inject(&correction);
         if !next.is_finite() || !covariance.iter().all(|x| x.is_finite()) {
             self.reset(ResetReason::NonFiniteUpdate);
@@ -585,10 +591,23 @@ impl Eskf {
         // correlation with the current pose): its covariance now describes errors about the
         // corrected pose, and the next relative pose must be compared with that pose.
         if let Some(clone) = &mut self.clone {
-            let block =
-                |at: usize| Vector3::new(correction[at], correction[at + 1], correction[at + 2]);
             clone.p += block(CLONE_POS);
             clone.q = UnitQuaternion::from_scaled_axis(block(CLONE_ATT)) * clone.q;
+        }
+        match (gated.carried, rows.carried_out_covariance()) {
+            (Some(mean), Some(prior)) => {
+                let part = |k: usize| Vector3::new(mean[k], mean[k + 1], mean[k + 2]);
+                self.carried = Some(CarriedNoise {
+                    prior: [0, 3].map(|k| prior.fixed_view::<3, 3>(k, k).into()),
+                    mean: [part(0), part(3)],
+                });
+            }
+            _ => {
+                if let Some(carried) = &mut self.carried {
+                    carried.mean[0] += block(CARRIED);
+                    carried.mean[1] += block(CARRIED + 3);
+                }
+            }
         }
         self.state = next;
         self.covariance = covariance;
@@ -608,6 +627,7 @@ impl Eskf {
     fn reset(&mut self, reason: ResetReason) {
         self.covariance = initial_covariance(&self.config);
         self.clone = None;
+        self.carried = None;
         self.reset_counter = self.reset_counter.wrapping_add(1);
         self.counters.resets += 1;
         self.last_reset = Some(reason);
@@ -697,8 +717,9 @@ impl Eskf {
                 covariance: Matrix3::zeros(),
                 observability: super::update::Observability::full(),
             }),
+            shared: None,
         };
-        let rows = probe.cloned_rows(clone, &self.state);
+        let rows = probe.cloned_rows(clone, &self.state, None);
         let s = rows.innovation_covariance(&self.covariance);
         // The probe's noise is zero, so the covariance is H P H^T.
         (
@@ -776,8 +797,8 @@ impl Eskf {
     pub fn state(&self) -> &NominalState {
         &self.state
     }
-    /// The 27x27 covariance; rows and columns 21.. are the clone's and meaningful only while a
-    /// clone is open.
+    /// The 33x33 covariance; rows and columns 21.. are the clone's and the carried noise's,
+    /// meaningful only while a clone is open.
     pub fn covariance(&self) -> &Covariance {
         &self.covariance
     }

@@ -52,6 +52,7 @@ fn measured_relative_pose(
             covariance: Matrix3::identity() * sigma_pos * sigma_pos,
             observability: Observability::full(),
         }),
+        shared: None,
     }
 }
 
@@ -326,6 +327,7 @@ fn an_overflowing_sample_resets_the_filter_with_a_reason() {
             covariance: Matrix3::identity(),
             observability: Observability::full(),
         }),
+        shared: None,
     };
     assert_eq!(
         filter.update_relative_pose(&bad),
@@ -569,6 +571,7 @@ mod hostile_input {
                                 covariance: Matrix3::identity() * variance,
                                 observability: Observability::full(),
                             }),
+                            shared: None,
                         };
                         let _ = filter.update_relative_pose(&measurement);
                     }

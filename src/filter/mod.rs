@@ -33,7 +33,7 @@ pub use eskf::{
     UpdateError, UpdateKind, UpdateReport,
 };
 pub use history::Pose;
-pub use relative_pose::{RelativePose, RelativeRotation, RelativeTranslation};
+pub use relative_pose::{RelativePose, RelativeRotation, RelativeTranslation, SharedNoise};
 pub use state::NominalState;
 pub use update::Observability;
 

@@ -19,7 +19,9 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::history::Pose;
-use super::state::{NominalState, ATT, CLONE_ATT, CLONE_POS, GYRO_BIAS, GYRO_SCALE, POS, VEL};
+use super::state::{
+    NominalState, ATT, CARRIED, CLONE_ATT, CLONE_POS, GYRO_BIAS, GYRO_SCALE, POS, VEL,
+};
 use super::update::{Jacobian3, Observability, Stacked};
 
 /// Rotation part of an odometry epoch.
@@ -42,6 +44,32 @@ pub struct RelativeTranslation {
     pub observability: Observability,
 }
 
+/// The part of a relative pose's noise that it shares with its neighbours. The planes of
+/// epoch i were also the current planes of the previous relative pose h->i, and those of epoch j
+/// will be the reference planes of the next one j->k, with the opposite sign: consecutive
+/// relative poses are negatively correlated (lag-one correlation -0.2 to -0.5 on hallway-hover),
+/// so their errors telescope when summed instead of adding up. Fused as independent, they make
+/// the position covariance grow as the sum of all of them, far above the error
+/// (docs/accuracy.md, "NEES"). Blocks: rotation (right perturbation, body-j axes), then
+/// displacement (body-i axes), as the measurement's own covariances, which include both parts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SharedNoise {
+    /// Covariance between the noise epoch i's planes put into this relative pose and the noise
+    /// they put into the previous one (as that one's `current`).
+    pub with_previous: [Matrix3<f64>; 2],
+    /// Covariance of the noise epoch j's planes put into this relative pose.
+    pub current: [Matrix3<f64>; 2],
+}
+
+/// The noise the reference epoch's planes put into the last fused relative pose, a state of
+/// the filter (`CARRIED..`) while the clone is open: its covariance before that update (the
+/// update's `SharedNoise::current`) and its estimate after it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CarriedNoise {
+    pub prior: [Matrix3<f64>; 2],
+    pub mean: [Vector3<f64>; 2],
+}
+
 /// One odometry epoch for the filter; either part may be missing.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RelativePose {
@@ -51,6 +79,8 @@ pub struct RelativePose {
     pub t: f64,
     pub rotation: Option<RelativeRotation>,
     pub translation: Option<RelativeTranslation>,
+    /// `None` fuses the relative pose as independent of its neighbours.
+    pub shared: Option<SharedNoise>,
 }
 
 impl RelativePose {
@@ -100,11 +130,21 @@ impl RelativePose {
                 displacement: d_front + c_front * (d.displacement + measured_rotation * d_back),
                 ..d
             }),
+            shared: self.shared,
         }
     }
 
-    /// Measurement rows against the current state and the cloned reference pose.
-    pub fn cloned_rows(&self, reference: &Pose, current: &NominalState) -> Stacked {
+    /// Measurement rows against the current state, the cloned reference pose and the noise
+    /// `carried` from the previous relative pose: `z = h(x_j, x_i) + L n_i + n_j + r`, with
+    /// `L = C U^+` the regression of this pose's epoch-i noise on the carried `n_i` (covariance
+    /// `U`, cross-covariance `C`), `n_j` the noise the current planes put in (carried out to the
+    /// next pose by the update) and `r` the rest, of covariance `R - L C^T`.
+    pub fn cloned_rows(
+        &self,
+        reference: &Pose,
+        current: &NominalState,
+        carried: Option<&CarriedNoise>,
+    ) -> Stacked {
         let now = Pose {
             t: self.t,
             p: current.p,
@@ -115,13 +155,19 @@ impl RelativePose {
         let r_j_t = current.q.to_rotation_matrix().into_inner().transpose();
         let mut rows = Stacked::default();
         if let Some(rotation) = &self.rotation {
+            let shared = SharedTerms::new(self.shared.as_ref(), carried, 0, &rotation.covariance);
             let mut h = Jacobian3::zeros();
             set(&mut h, ATT, &r_j_t);
             set(&mut h, CLONE_ATT, &-r_j_t);
-            let residual = rotation_residual(&c_hat, &rotation.rotation_vector);
-            rows.push(&residual, &h, &rotation.covariance, &rotation.observability);
+            set(&mut h, CARRIED, &shared.l);
+            let residual =
+                rotation_residual(&c_hat, &rotation.rotation_vector) - shared.carried_mean;
+            rows.push(&residual, &h, &shared.noise, &rotation.observability);
+            rows.carry_out(0, &shared.current, &rotation.observability);
         }
         if let Some(translation) = &self.translation {
+            let shared =
+                SharedTerms::new(self.shared.as_ref(), carried, 1, &translation.covariance);
             let mut h = Jacobian3::zeros();
             set(&mut h, POS, &r_i_t);
             set(&mut h, CLONE_POS, &-r_i_t);
@@ -130,13 +176,10 @@ impl RelativePose {
                 CLONE_ATT,
                 &(r_i_t * (current.p - reference.p).cross_matrix()),
             );
-            let residual = translation.displacement - d_hat;
-            rows.push(
-                &residual,
-                &h,
-                &translation.covariance,
-                &translation.observability,
-            );
+            set(&mut h, CARRIED + 3, &shared.l);
+            let residual = translation.displacement - d_hat - shared.carried_mean;
+            rows.push(&residual, &h, &shared.noise, &translation.observability);
+            rows.carry_out(1, &shared.current, &translation.observability);
         }
         rows
     }
@@ -185,6 +228,64 @@ impl RelativePose {
         }
         rows
     }
+}
+
+/// One block's share of the noise: the carried noise's Jacobian `L` and its estimate's share
+/// of the residual, the independent rest of the noise, and what this pose carries out.
+struct SharedTerms {
+    l: Matrix3<f64>,
+    carried_mean: Vector3<f64>,
+    noise: Matrix3<f64>,
+    current: Matrix3<f64>,
+}
+
+impl SharedTerms {
+    fn new(
+        shared: Option<&SharedNoise>,
+        carried: Option<&CarriedNoise>,
+        block: usize,
+        covariance: &Matrix3<f64>,
+    ) -> Self {
+        let independent = Self {
+            l: Matrix3::zeros(),
+            carried_mean: Vector3::zeros(),
+            noise: *covariance,
+            current: shared.map_or_else(Matrix3::zeros, |s| s.current[block]),
+        };
+        let (Some(shared), Some(carried)) = (shared, carried) else {
+            return independent;
+        };
+        let cross = shared.with_previous[block];
+        let l = cross * pseudo_inverse(&carried.prior[block]);
+        let explained = l * cross.transpose();
+        let noise = covariance - (explained + explained.transpose()) * 0.5;
+        // By construction `R - L C^T` keeps at least the current planes' noise; a covariance
+        // that disagrees (rounding on a nearly singular prior) falls back to independence.
+        if noise.cholesky().is_none() {
+            return independent;
+        }
+        Self {
+            l,
+            carried_mean: l * carried.mean[block],
+            noise,
+            ..independent
+        }
+    }
+}
+
+/// Moore-Penrose inverse of a symmetric positive semi-definite matrix; directions with an
+/// eigenvalue below 1e-9 of the largest (nothing carried along them) are left out.
+fn pseudo_inverse(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let eigen = m.symmetric_eigen();
+    let largest = eigen.eigenvalues.amax();
+    let mut inverse = Matrix3::zeros();
+    for (k, &value) in eigen.eigenvalues.iter().enumerate() {
+        if value > 1e-9 * largest && value > 0.0 {
+            let v = eigen.eigenvectors.column(k);
+            inverse += v * v.transpose() / value;
+        }
+    }
+    inverse
 }
 
 fn rotation_residual(predicted: &UnitQuaternion<f64>, measured: &Vector3<f64>) -> Vector3<f64> {

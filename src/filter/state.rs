@@ -1,6 +1,8 @@
 //! Nominal state and the layout of the 21 error states (Sola 2017, global attitude error):
 //! `[dp, dv, dtheta, dbg, dba, dsg, dsa]`, followed in the covariance by the 6 cloned states
-//! `[dp_i, dtheta_i]` of the reference epoch when a clone is active.
+//! `[dp_i, dtheta_i]` of the reference epoch when a clone is active, and by the 6 states of the
+//! noise the reference epoch's planes left in the last fused relative pose
+//! `[rotation, displacement]`, which the next relative pose shares (`relative_pose::SharedNoise`).
 
 use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector3};
 
@@ -15,8 +17,11 @@ pub const ACCEL_SCALE: usize = 18;
 pub const ERROR_STATES: usize = 21;
 pub const CLONE_POS: usize = 21;
 pub const CLONE_ATT: usize = 24;
-/// Error states plus the clone of the reference pose.
-pub const AUGMENTED: usize = 27;
+/// The carried noise of the reference epoch's planes: rotation (right perturbation, body axes
+/// of the reference epoch), then displacement.
+pub const CARRIED: usize = 27;
+/// Error states, the clone of the reference pose and the carried noise.
+pub const AUGMENTED: usize = 33;
 
 pub type Covariance = SMatrix<f64, AUGMENTED, AUGMENTED>;
 pub type ErrorState = SVector<f64, AUGMENTED>;

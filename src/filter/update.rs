@@ -5,7 +5,7 @@ use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 use super::consistency::chi_square_quantile;
 use super::covariance::symmetrise;
-use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT};
+use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CARRIED, CLONE_ATT};
 
 /// Up to six measurement rows: two three-row blocks (e.g. rotation and displacement).
 pub const ROWS: usize = 6;
@@ -68,6 +68,9 @@ pub struct Stacked {
     innovation: SVector<f64, ROWS>,
     jacobian: SMatrix<f64, ROWS, AUGMENTED>,
     noise: SMatrix<f64, ROWS, ROWS>,
+    /// Covariance between the rows' noise and the noise the measurement carries out to the next
+    /// one (the filter's `CARRIED..` states after the update), and that noise's own covariance.
+    carried_out: Option<(SMatrix<f64, ROWS, 6>, SMatrix<f64, 6, 6>)>,
     dof: usize,
     next_row: usize,
 }
@@ -78,6 +81,7 @@ impl Default for Stacked {
             innovation: SVector::zeros(),
             jacobian: SMatrix::zeros(),
             noise: SMatrix::identity(),
+            carried_out: None,
             dof: 0,
             next_row: 0,
         }
@@ -112,6 +116,34 @@ impl Stacked {
         self.next_row += 3;
     }
 
+    /// Marks part of the last pushed block's noise, of covariance `covariance`, as carried out
+    /// to the next measurement as block `block` (0 rotation, 1 displacement) of the carried
+    /// states; `observability` is the one the block was pushed with.
+    pub fn carry_out(
+        &mut self,
+        block: usize,
+        covariance: &Matrix3<f64>,
+        observability: &Observability,
+    ) {
+        let row = self.next_row - 3;
+        let (cross, own) = self
+            .carried_out
+            .get_or_insert_with(|| (SMatrix::zeros(), SMatrix::zeros()));
+        let projected = observability.basis.transpose() * covariance;
+        for i in 0..observability.rank {
+            for j in 0..3 {
+                cross[(row + i, 3 * block + j)] = projected[(i, j)];
+            }
+        }
+        own.fixed_view_mut::<3, 3>(3 * block, 3 * block)
+            .copy_from(covariance);
+    }
+
+    /// The carried-out noise's own covariance, as `carry_out` set it.
+    pub fn carried_out_covariance(&self) -> Option<SMatrix<f64, 6, 6>> {
+        self.carried_out.map(|(_, own)| own)
+    }
+
     pub fn dof(&self) -> usize {
         self.dof
     }
@@ -137,6 +169,8 @@ pub struct Gated {
     pub threshold: f64,
     /// The error-state correction, `None` when the gate rejected the measurement.
     pub correction: Option<ErrorState>,
+    /// Estimate of the noise the measurement carried out, when it carried some and passed.
+    pub carried: Option<SVector<f64, 6>>,
 }
 
 /// The innovation covariance is not positive definite (a broken measurement covariance).
@@ -175,6 +209,7 @@ pub fn apply(
         dof: measurement.dof,
         threshold,
         correction: None,
+        carried: None,
     };
     if measurement.dof == 0 || nis > threshold {
         return Ok(gated);
@@ -182,12 +217,42 @@ pub fn apply(
     let gain_t = cholesky.solve(&pht.transpose());
     let dx = gain_t.transpose() * y;
     *p -= pht * gain_t;
+    if let Some((cross, own)) = &measurement.carried_out {
+        gated.carried = Some(carry_forward(p, &pht, &cholesky, cross, own, &y));
+    }
     for at in [ATT, CLONE_ATT] {
         reset_attitude_error(p, at, &Vector3::new(dx[at], dx[at + 1], dx[at + 2]));
     }
     symmetrise(p);
     gated.correction = Some(dx);
     Ok(gated)
+}
+
+/// Replaces the carried states (the previous measurement's noise, now marginalised out) with
+/// the noise `n` this measurement carries out, as if it had been a state of prior covariance
+/// `own` and zero cross-covariance: `Cov(dx, n) = -K cross`,
+/// `Cov(n) = own - cross^T S^-1 cross`, `n_hat = cross^T S^-1 y`.
+fn carry_forward(
+    p: &mut Covariance,
+    pht: &SMatrix<f64, AUGMENTED, ROWS>,
+    s: &nalgebra::Cholesky<f64, nalgebra::Const<ROWS>>,
+    cross: &SMatrix<f64, ROWS, 6>,
+    own: &SMatrix<f64, 6, 6>,
+    y: &SVector<f64, ROWS>,
+) -> SVector<f64, 6> {
+    let s_inv_cross = s.solve(cross);
+    let with_state = -(pht * s_inv_cross);
+    let posterior = own - cross.transpose() * s_inv_cross;
+    for c in 0..6 {
+        for i in 0..CARRIED {
+            p[(i, CARRIED + c)] = with_state[(i, c)];
+            p[(CARRIED + c, i)] = with_state[(i, c)];
+        }
+        for r in 0..6 {
+            p[(CARRIED + r, CARRIED + c)] = posterior[(r, c)];
+        }
+    }
+    s_inv_cross.transpose() * y
 }
 
 fn reset_attitude_error(p: &mut Covariance, at: usize, dtheta: &Vector3<f64>) {

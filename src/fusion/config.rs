@@ -27,9 +27,13 @@ pub struct FusionConfig {
     /// estimates degraded. Default 1.0 s.
     pub scan_stale_s: f64,
     /// Factor on the odometer's rotation and displacement covariances before they are fused.
-    /// Consecutive epochs share planes, so their errors are correlated, which the filter's
-    /// independent updates do not model; the factor keeps the fused covariance honest.
     pub measurement_covariance_scale: f64,
+    /// Whether the filter models the noise consecutive relative poses share through the planes
+    /// of their common epoch (`shared_noise`). Without it, their telescoping errors are fused
+    /// as independent and the filter is conservative. Default true; at 10 Hz with a slowly
+    /// moving door in view, which integrity cannot see in 0.1 s, the model is optimistic on
+    /// velocity (docs/accuracy.md, "Shared plane noise"), and false is the safer choice.
+    pub shared_plane_noise: bool,
 }
 
 impl Default for FusionConfig {
@@ -41,6 +45,7 @@ impl Default for FusionConfig {
             estimate_decimation: 1,
             scan_stale_s: 1.0,
             measurement_covariance_scale: 1.0,
+            shared_plane_noise: true,
         }
     }
 }

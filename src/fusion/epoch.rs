@@ -6,6 +6,7 @@ use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
 
 use super::anchor::Anchored;
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
+use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
 use crate::estimation::Solution;
@@ -32,14 +33,16 @@ impl Fusion {
         self.extract(scans, t_ref, &mut current);
         let mut record = planes_record(&current);
         let reference = self.reference.take();
+        let mut noise_maps = Vec::new();
         if let Some(reference) = reference.as_ref().filter(|r| r.cloned) {
             record.t_previous = Some(reference.planes.t_ref);
-            self.solve_and_fuse(&reference.planes, &current, &mut record);
+            noise_maps = self.solve_and_fuse(reference, &current, &mut record);
         }
         let cloned = self.filter.clone_pose().is_ok();
         self.reference = Some(Reference {
             planes: current,
             cloned,
+            noise_maps,
         });
         self.current = reference.map(|r| r.planes).unwrap_or_default();
         record
@@ -60,15 +63,17 @@ impl Fusion {
             .extract_into([&scans[0], &scans[1]], t_ref, &pose_at, out);
     }
 
+    /// Returns how the current planes entered the fused relative pose.
     fn solve_and_fuse(
         &mut self,
-        previous: &EpochPlanes,
+        reference: &Reference,
         current: &EpochPlanes,
         record: &mut EpochRecord,
-    ) {
+    ) -> Vec<PlaneNoiseMap> {
+        let previous = &reference.planes;
         let Some(prior) = self.filter.relative_pose(previous.t_ref, current.t_ref) else {
             record.outcome = EpochOutcome::Reference;
-            return;
+            return Vec::new();
         };
         // The filter's rotation covariance is of a right perturbation (body j); the odometer
         // wants a left one (body i).
@@ -83,12 +88,24 @@ impl Fusion {
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
         let cleared = self.clear(&epoch, &report, anchored.as_ref());
-        let measurement = measurement(
-            previous.t_ref,
-            current.t_ref,
-            &cleared,
-            self.config.measurement_covariance_scale,
-        );
+        let scale = self.config.measurement_covariance_scale;
+        let mut measurement = measurement(previous.t_ref, current.t_ref, &cleared, scale);
+        let mut noise_maps = Vec::new();
+        if self.config.shared_plane_noise {
+            let maps = NoiseMaps::new(
+                cleared.rotation.as_ref(),
+                cleared.displacement.as_ref(),
+                &epoch.matches,
+                &previous.planes,
+            );
+            measurement.shared = Some(maps.shared_noise(
+                &reference.noise_maps,
+                &previous.planes,
+                &current.planes,
+                scale,
+            ));
+            noise_maps = maps.current;
+        }
         self.integrity = Some(report.status.clone());
         describe_solve(record, current, &epoch, &cleared, anchored.as_ref(), report);
         record.rotation = measurement
@@ -98,6 +115,7 @@ impl Fusion {
             .translation
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
+        noise_maps
     }
 
     /// Hands the cleared relative pose to the filter, if anything was cleared.
@@ -210,6 +228,7 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelat
         t,
         rotation,
         translation,
+        shared: None,
     }
 }
 

@@ -14,6 +14,7 @@ mod epoch;
 pub mod evaluate;
 pub mod monte_carlo;
 pub mod record;
+mod shared_noise;
 pub mod sources;
 
 pub use config::{FusionConfig, FusionError, FusionSettings};
@@ -49,6 +50,8 @@ pub struct FusionCounters {
 struct Reference {
     planes: EpochPlanes,
     cloned: bool,
+    /// How the planes entered the relative pose that ended at this epoch, if one was solved.
+    noise_maps: Vec<shared_noise::PlaneNoiseMap>,
 }
 
 pub struct Fusion {
