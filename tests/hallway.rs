@@ -59,6 +59,12 @@ fn at_10hz(mut settings: FusionSettings) -> FusionSettings {
     settings
 }
 
+/// Consecutive relative poses fused as independent, the conservative choice at 10 Hz.
+fn independent_epochs(mut settings: FusionSettings) -> FusionSettings {
+    settings.fusion.shared_plane_noise = false;
+    settings
+}
+
 fn run(label: &str, scenario: &Scenario, settings: &FusionSettings) -> AccuracyReport {
     let report = run_scenario(scenario, settings).unwrap();
     println!("{label}: {}", serde_json::to_string(&report).unwrap());
@@ -195,6 +201,8 @@ fn hover_500s_1hz_pitch_only() {
     );
 }
 
+/// At 10 Hz the shared-noise model is optimistic on velocity while the door moves
+/// (docs/accuracy.md, "Shared plane noise"): the accuracy targets hold, the honesty is bounded.
 #[test]
 #[ignore]
 fn hover_500s_10hz() {
@@ -203,7 +211,21 @@ fn hover_500s_10hz() {
         &scenario("hallway-hover", None, Some(3)),
         &at_10hz(settings(40.0)),
     );
-    assert_targets(&report);
+    assert_within(&report, [0.03, 0.02, 0.02], [2.0, 2.0, 3.0], 2.0);
+    assert!(report.nees_mean <= 1.4 * 9.0, "NEES {}", report.nees_mean);
+}
+
+/// With independent epochs, 10 Hz is honest but less accurate (yaw and along-track velocity).
+#[test]
+#[ignore]
+fn hover_500s_10hz_independent_epochs() {
+    let report = run(
+        "hallway-hover 10 Hz, independent epochs",
+        &scenario("hallway-hover", None, Some(3)),
+        &independent_epochs(at_10hz(settings(40.0))),
+    );
+    assert_within(&report, [0.03, 0.02, 0.02], [2.0, 2.0, 5.0], 2.0);
+    assert_honest(&report);
 }
 
 #[test]
@@ -308,14 +330,22 @@ fn monte_carlo_nees_hover_1hz_scenario_unit() {
         NeesPart::Velocity,
         NeesPart::Attitude,
         NeesPart::Tilt,
-        NeesPart::Yaw,
     ] {
         assert_consistent(&report, part, 0.85);
     }
-    // Position is conservative (its run average is below the interval); never above.
-    for part in NeesPart::ALL {
+    // Position and yaw, dead-reckoned, are conservative (below the interval); never above.
+    for part in [
+        NeesPart::Full,
+        NeesPart::Position,
+        NeesPart::Velocity,
+        NeesPart::Attitude,
+        NeesPart::Yaw,
+    ] {
         assert_not_optimistic(&report, part, 0.05);
     }
+    // Tilt is a little optimistic (docs/accuracy.md, "What remains").
+    assert_mean_below(&report, NeesPart::Tilt, 1.15);
+    assert_mean_below(&report, NeesPart::Observable, 1.1);
 }
 
 #[test]
@@ -350,11 +380,11 @@ fn monte_carlo_nees_hover_10hz_drawn_units() {
         20,
         UnitErrors::DrawnFromFilterPrior,
     );
-    // Optimistic at 10 Hz: position and tilt (docs/accuracy.md, "What remains").
-    assert_mean_below(&report, NeesPart::Full, 1.6);
-    assert_mean_below(&report, NeesPart::Position, 1.6);
-    assert_mean_below(&report, NeesPart::Tilt, 2.0);
-    assert_mean_below(&report, NeesPart::Velocity, 1.3);
+    // Optimistic at 10 Hz: velocity and tilt (docs/accuracy.md, "What remains").
+    assert_mean_below(&report, NeesPart::Full, 1.7);
+    assert_mean_below(&report, NeesPart::Position, 1.2);
+    assert_mean_below(&report, NeesPart::Tilt, 1.8);
+    assert_mean_below(&report, NeesPart::Velocity, 2.4);
     assert_not_optimistic(&report, NeesPart::Yaw, 0.05);
 }
 
@@ -369,13 +399,30 @@ fn monte_carlo_nees_hover_10hz_scenario_unit() {
         UnitErrors::AsScenario,
     );
     assert_consistent(&report, NeesPart::Tilt, 0.8);
-    for part in [NeesPart::Attitude, NeesPart::Tilt, NeesPart::Yaw] {
-        assert_not_optimistic(&report, part, 0.05);
-    }
-    // Optimistic at 10 Hz whatever the unit: position (docs/accuracy.md, "What remains").
+    assert_not_optimistic(&report, NeesPart::Yaw, 0.05);
+    // Optimistic at 10 Hz whatever the unit: velocity, while the door moves (docs/accuracy.md,
+    // "Shared plane noise").
     assert_mean_below(&report, NeesPart::Full, 1.6);
-    assert_mean_below(&report, NeesPart::Position, 1.6);
-    assert_mean_below(&report, NeesPart::Velocity, 1.3);
+    assert_mean_below(&report, NeesPart::Position, 1.2);
+    assert_mean_below(&report, NeesPart::Velocity, 2.4);
+    assert_mean_below(&report, NeesPart::Tilt, 1.3);
+}
+
+/// The same study with independent epochs is never optimistic, door and board moving.
+#[test]
+#[ignore]
+fn monte_carlo_nees_hover_10hz_independent_epochs() {
+    let report = monte_carlo(
+        "hallway-hover 10 Hz, Monte Carlo, scenario unit, independent epochs",
+        &scenario("hallway-hover", None, Some(3)),
+        &independent_epochs(at_10hz(settings(40.0))),
+        20,
+        UnitErrors::AsScenario,
+    );
+    for part in NeesPart::ALL {
+        assert_not_optimistic(&report, part, 0.07);
+        assert_mean_below(&report, part, 1.0);
+    }
 }
 
 /// The 10 Hz study above, scenario unit, with the named patches held still.
@@ -389,32 +436,38 @@ fn monte_carlo_10hz_holding(label: &str, held: &[&str]) -> MonteCarloReport {
     )
 }
 
-/// With the door and the board still, no part at 10 Hz is ever above its interval: the 10 Hz
-/// position optimism of the study above is theirs (docs/accuracy.md, "NEES").
-#[test]
-#[ignore]
-fn monte_carlo_nees_hover_10hz_door_and_board_still() {
-    let report = monte_carlo_10hz_holding(
-        "hallway-hover 10 Hz, Monte Carlo, scenario unit, door and board still",
-        &["door", "board"],
-    );
-    for part in NeesPart::ALL {
-        assert_not_optimistic(&report, part, 0.02);
+/// The 10 Hz velocity optimism of the scenario-unit study is mostly the door's: with it still
+/// (and the board still or moving), the velocity NEES falls from 2.3 to under 1.2 times its
+/// dof, and position, attitude and yaw are never above their intervals.
+fn assert_door_still_10hz(report: &MonteCarloReport) {
+    assert_mean_below(report, NeesPart::Velocity, 1.2);
+    for part in [
+        NeesPart::Full,
+        NeesPart::Position,
+        NeesPart::Attitude,
+        NeesPart::Tilt,
+        NeesPart::Yaw,
+    ] {
+        assert_not_optimistic(report, part, 0.03);
     }
 }
 
-/// The moving board alone at 10 Hz (door held still) never makes the filter optimistic: the
-/// 10 Hz position optimism is the door's (docs/accuracy.md, "NEES").
+#[test]
+#[ignore]
+fn monte_carlo_nees_hover_10hz_door_and_board_still() {
+    assert_door_still_10hz(&monte_carlo_10hz_holding(
+        "hallway-hover 10 Hz, Monte Carlo, scenario unit, door and board still",
+        &["door", "board"],
+    ));
+}
+
 #[test]
 #[ignore]
 fn monte_carlo_nees_hover_10hz_door_still_board_moving() {
-    let report = monte_carlo_10hz_holding(
+    assert_door_still_10hz(&monte_carlo_10hz_holding(
         "hallway-hover 10 Hz, Monte Carlo, scenario unit, door still, board moving",
         &["door"],
-    );
-    for part in NeesPart::ALL {
-        assert_not_optimistic(&report, part, 0.03);
-    }
+    ));
 }
 
 /// The Monte Carlo study in small: three seeds of a short hover whose motion starts right
