@@ -1,4 +1,4 @@
-//! Hot-path costs of the error-state EKF: one IMU sample (strapdown + 27x27 covariance
+//! Hot-path costs of the error-state EKF: one IMU sample (strapdown + 33x33 covariance
 //! propagation) and one relative-pose update (6 rows against the cloned pose).
 //! Run: `cargo bench --bench filter`.
 
@@ -55,7 +55,7 @@ fn propagate_one_imu_sample(bencher: Bencher, delta: bool) {
         .bench_local_refs(|sample| filter.push_imu(sample));
 }
 
-/// Same, while an odometry epoch is open (27 states propagated instead of 21).
+/// Same, while an odometry epoch is open (33 states propagated instead of 21).
 #[divan::bench]
 fn propagate_with_open_clone(bencher: Bencher) {
     let mut filter = moving_filter();

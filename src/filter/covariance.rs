@@ -77,14 +77,21 @@ impl ErrorDynamics {
     }
 
     /// `P <- F P F^T + Q dt` in place. With `with_clone` false the clone rows and columns
-    /// (stale until the next clone overwrites them) are skipped.
-    pub fn propagate(&self, p: &mut Covariance, noise: &ProcessNoise, dt: f64, with_clone: bool) {
-        if with_clone {
-            self.propagate_first::<AUGMENTED>(p, dt);
+    /// (stale until the next clone overwrites them) are skipped. Returns whether every entry
+    /// it changed is finite, so the caller need not scan the matrix again per IMU sample.
+    pub fn propagate(
+        &self,
+        p: &mut Covariance,
+        noise: &ProcessNoise,
+        dt: f64,
+        with_clone: bool,
+    ) -> bool {
+        let first_finite = if with_clone {
+            self.propagate_first::<AUGMENTED>(p, dt)
         } else {
-            self.propagate_first::<ERROR_STATES>(p, dt);
-        }
-        noise.add_to(p, dt);
+            self.propagate_first::<ERROR_STATES>(p, dt)
+        };
+        noise.add_to(p, dt) & first_finite
     }
 
     /// With `L = dt A P` (rows 0..9 only) and `P` symmetric, `F P F^T = P + L + L^T + dt L A^T`:
@@ -92,7 +99,7 @@ impl ErrorDynamics {
     /// `dt A L^T`. `L` is formed column by column (3-vector products that stay in registers)
     /// and the columns 0..9 are written as the mirror of the rows, which keeps `P` exactly
     /// symmetric at about a third of the cost of `F P F^T` from both sides.
-    fn propagate_first<const C: usize>(&self, p: &mut Covariance, dt: f64) {
+    fn propagate_first<const C: usize>(&self, p: &mut Covariance, dt: f64) -> bool {
         let step = self.scaled(dt);
         let mut l = SMatrix::<f64, 9, C>::zeros();
         for (j, mut column) in l.column_iter_mut().enumerate() {
@@ -105,6 +112,7 @@ impl ErrorDynamics {
         let n = AUGMENTED;
         let p = p.as_mut_slice();
         let l = l.as_slice();
+        let mut finite = true;
         for j in 0..9 {
             for i in 0..=j {
                 let gained =
@@ -112,6 +120,7 @@ impl ErrorDynamics {
                 let value = p[j * n + i] + gained;
                 p[j * n + i] = value;
                 p[i * n + j] = value;
+                finite &= value.is_finite();
             }
         }
         for j in 9..C {
@@ -119,8 +128,10 @@ impl ErrorDynamics {
                 let value = p[j * n + i] + l[j * 9 + i];
                 p[j * n + i] = value;
                 p[i * n + j] = value;
+                finite &= value.is_finite();
             }
         }
+        finite
     }
 }
 
@@ -144,12 +155,16 @@ impl ProcessNoise {
         }
     }
 
-    fn add_to(&self, p: &mut Covariance, dt: f64) {
+    /// Returns whether the diagonal entries it changed are finite.
+    fn add_to(&self, p: &mut Covariance, dt: f64) -> bool {
+        let mut finite = true;
         for (at, density) in self.blocks {
             for i in at..at + 3 {
                 p[(i, i)] += density * dt;
+                finite &= p[(i, i)].is_finite();
             }
         }
+        finite
     }
 }
 
@@ -201,9 +216,9 @@ mod tests {
         let f = Covariance::identity() + dense_a(&d) * inc.dt;
         let mut p = p0;
         let config = FilterConfig::default();
-        d.propagate(&mut p, &ProcessNoise::new(&config), inc.dt, true);
+        assert!(d.propagate(&mut p, &ProcessNoise::new(&config), inc.dt, true));
         let mut expected = f * p0 * f.transpose();
-        ProcessNoise::new(&config).add_to(&mut expected, inc.dt);
+        assert!(ProcessNoise::new(&config).add_to(&mut expected, inc.dt));
         assert!((p - expected).norm() < 1e-12 * expected.norm());
         assert_eq!(p, p.transpose(), "the mirrored half must match bit for bit");
         // The clone and carried-noise block itself is untouched by propagation.

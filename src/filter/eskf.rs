@@ -321,19 +321,12 @@ impl Eskf {
             &self.state.accel_scale,
         );
         // In place: a non-finite result is discarded by the reset anyway.
-        dynamics.propagate(
+        let covariance_finite = dynamics.propagate(
             &mut self.covariance,
             &self.noise,
             corrected.dt,
             self.clone.is_some(),
         );
-        // Propagation changes only rows and columns 0..9 and the diagonal.
-        let covariance_finite = self
-            .covariance
-            .fixed_rows::<9>(POS)
-            .iter()
-            .all(|x| x.is_finite())
-            && self.covariance.diagonal().iter().all(|x| x.is_finite());
         if !next.is_finite() || !covariance_finite {
             self.reset(ResetReason::NonFinitePropagation);
             return Some(ResetReason::NonFinitePropagation);
