@@ -315,20 +315,21 @@ fn fit_segment(beams: &[Beam], a: usize, b: usize, parameters: &LineParameters) 
     let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
     let direction_2d = Vector2::new(angle.cos(), angle.sin());
     let normal_2d = Vector2::new(-direction_2d.y, direction_2d.x);
-    let abscissa = |beam: &Beam| {
-        direction_2d.dot(&(where_beam_meets_line(beam, &centroid_2d, &normal_2d) - centroid_2d))
-    };
-    let mean_abscissa = points.iter().map(abscissa).sum::<f64>() / n;
+    // One pass over the abscissae, centred afterwards: the moment needs no centring, as the
+    // 3-D offsets from the centroid sum to zero.
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
+    let (mut sum, mut sum_of_squares) = (0.0, 0.0);
     let mut moment = Vector3::zeros();
-    let mut abscissa_spread = 0.0;
     for beam in points {
-        let t = abscissa(beam) - mean_abscissa;
+        let on_line = where_beam_meets_line(beam, &centroid_2d, &normal_2d);
+        let t = direction_2d.dot(&(on_line - centroid_2d));
         low = low.min(t);
         high = high.max(t);
+        sum += t;
+        sum_of_squares += t * t;
         moment += (beam.body - centroid) * t;
-        abscissa_spread += t * t;
     }
+    let abscissa_spread = sum_of_squares - sum * sum / n;
     let length = high - low;
     if length < parameters.min_length_m {
         return None;
