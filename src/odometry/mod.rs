@@ -485,7 +485,6 @@ impl Odometer {
     }
 }
 
-/// Orthonormal basis (3x2) of the plane perpendicular to the unit vector `n`.
 /// Readings whose beam meets a surface at a smaller cosine are not slid onto it: along a
 /// grazing beam the slide would move them further than their noise.
 const MIN_SLIDE_COSINE: f64 = 0.1;
@@ -504,6 +503,7 @@ fn slid_along_beam(beam: &Beam, height: f64, normal: &Vector3<f64>) -> Vector3<f
     }
 }
 
+/// Orthonormal basis (3x2) of the plane perpendicular to the unit vector `n`.
 pub(crate) fn tangent_basis(n: &Vector3<f64>) -> Matrix3x2<f64> {
     let helper = if n.x.abs() < 0.6 {
         Vector3::x()
