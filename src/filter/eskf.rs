@@ -474,6 +474,9 @@ impl Eskf {
         &mut self,
         measurement: &RelativePose,
     ) -> Result<UpdateReport, UpdateError> {
+        // The carried noise is shared only with the very next relative pose: once this one is
+        // tried, fused or not, the pose after it shares nothing with the carried one.
+        let carried = self.carried.take();
         let now = self.aligned_time()?;
         if !measurement.is_finite() {
             return Err(UpdateError::NonFinite);
@@ -513,12 +516,11 @@ impl Eskf {
                 let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
                 let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
                 (
-                    bridged.cloned_rows(&clone, &self.state, self.carried.take().as_ref()),
+                    bridged.cloned_rows(&clone, &self.state, carried.as_ref()),
                     UpdateKind::RelativePoseCloned,
                 )
             }
             RelativePoseUpdate::Velocity => {
-                self.carried = None;
                 let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
                 (
                     bridged.velocity_rows(

@@ -523,6 +523,53 @@ fn aligned() -> FilterConfig {
 }
 
 #[test]
+fn a_relative_pose_that_fails_breaks_the_chain_of_shared_noise() {
+    let trajectory = Circle::default();
+    let shared = SharedNoise {
+        with_previous: ODOMETRY_SIGMA.map(|sigma| -Matrix3::identity() * sigma * sigma),
+        current: ODOMETRY_SIGMA.map(|sigma| Matrix3::identity() * sigma * sigma),
+    };
+    let noise = ODOMETRY_SIGMA.map(Vector3::repeat);
+    let variance = ODOMETRY_SIGMA.map(|sigma| 2.0 * sigma * sigma);
+    let pose = |t_ref: f64, t: f64, shared: Option<SharedNoise>| RelativePose {
+        shared,
+        ..relative_pose_with_noise(&trajectory, t_ref, t, noise, variance)
+    };
+    let after_a_failed_epoch = |second: Option<SharedNoise>| {
+        let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+        feed(&mut filter, &trajectory.imu_samples(0.0, 1.0, 100.0, true));
+        filter.clone_pose().unwrap();
+        feed(&mut filter, &trajectory.imu_samples(1.0, 2.0, 100.0, true));
+        assert!(
+            filter
+                .update_relative_pose(&pose(1.0, 2.0, Some(shared)))
+                .unwrap()
+                .accepted
+        );
+        filter.clone_pose().unwrap();
+        feed(&mut filter, &trajectory.imu_samples(2.0, 3.0, 100.0, true));
+        let stale = filter.update_relative_pose(&pose(2.0, 3.5, Some(shared)));
+        assert!(
+            matches!(stale, Err(UpdateError::TimeMismatch { .. })),
+            "{stale:?}"
+        );
+        filter
+            .update_relative_pose(&pose(2.0, 3.0, second))
+            .unwrap();
+        filter.estimate()
+    };
+    // The epoch after the failed one cannot share noise with the one before it, whatever the
+    // odometer says: fused with or without its shared part, it must give the same estimate.
+    let (with, without) = (
+        after_a_failed_epoch(Some(shared)),
+        after_a_failed_epoch(None),
+    );
+    assert_eq!(with.position, without.position);
+    assert_eq!(with.position_covariance, without.position_covariance);
+    assert_eq!(with.attitude_covariance, without.attitude_covariance);
+}
+
+#[test]
 fn epochs_between_imu_samples_are_bridged_with_the_propagated_motion() {
     let trajectory = Circle::default();
     let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
