@@ -1,6 +1,10 @@
 //! Plane matching: each plane of epoch j is predicted into epoch i's body frame with the prior
 //! relative pose and paired one-to-one with the epoch-i plane it fits best, within a
-//! chi-square gate on the normal (2 degrees of freedom) and the distance (1).
+//! chi-square gate on the normal (2 degrees of freedom) and the distance (1) together, and a
+//! tighter one on the normal alone. The normal is predicted with the gyro's rotation, nearly
+//! exact, so its gate is a real test that keeps a turning door out; the distance is predicted
+//! with the filter's velocity, which is off exactly when the filter is wrong, so the gate on it
+//! stays wide (`OdometryConfig::match_gate_chi2`).
 
 use super::planes::Plane;
 use super::{tangent_basis, RelativePose};
@@ -30,21 +34,23 @@ impl Matcher {
         previous: &[Plane],
         current: &[Plane],
         prior: &RelativePose,
-        gate_chi2: f64,
+        gates: &MatchGates,
         out: &mut Vec<PlaneMatch>,
     ) {
         out.clear();
         self.candidates.clear();
         for (i, plane_i) in previous.iter().enumerate() {
             for (j, plane_j) in current.iter().enumerate() {
-                if let Some(distance_squared) = mahalanobis_squared(plane_i, plane_j, prior) {
-                    if distance_squared <= gate_chi2 {
-                        self.candidates.push(PlaneMatch {
-                            previous: i,
-                            current: j,
-                            distance_squared,
-                        });
-                    }
+                let Some(terms) = mahalanobis_terms(plane_i, plane_j, prior) else {
+                    continue;
+                };
+                let distance_squared = terms.normal + terms.distance;
+                if terms.normal <= gates.normal_chi2 && distance_squared <= gates.total_chi2 {
+                    self.candidates.push(PlaneMatch {
+                        previous: i,
+                        current: j,
+                        distance_squared,
+                    });
                 }
             }
         }
@@ -66,9 +72,29 @@ impl Matcher {
     }
 }
 
-/// Squared Mahalanobis distance between plane i and plane j predicted into frame i, or None if
-/// they face opposite ways.
-pub fn mahalanobis_squared(plane_i: &Plane, plane_j: &Plane, prior: &RelativePose) -> Option<f64> {
+/// Chi-square gates of a match: on the normal and distance together (3 degrees of freedom) and
+/// on the normal alone (2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MatchGates {
+    pub total_chi2: f64,
+    pub normal_chi2: f64,
+}
+
+/// The normal's (2 degrees of freedom) and the distance's (1) share of the squared Mahalanobis
+/// distance between plane i and plane j predicted into frame i.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MahalanobisTerms {
+    pub normal: f64,
+    pub distance: f64,
+}
+
+/// The squared Mahalanobis terms of plane j predicted into frame i, or None if they face
+/// opposite ways.
+pub fn mahalanobis_terms(
+    plane_i: &Plane,
+    plane_j: &Plane,
+    prior: &RelativePose,
+) -> Option<MahalanobisTerms> {
     let n_i = plane_i.normal;
     let predicted = prior.rotation * plane_j.normal;
     if n_i.dot(&predicted) <= 0.0 {
@@ -90,5 +116,8 @@ pub fn mahalanobis_squared(plane_i: &Plane, plane_j: &Plane, prior: &RelativePos
         + plane_j.uncertainty.sigma_rho.powi(2)
         + n_i.dot(&(prior.translation_covariance * n_i))
         + dr.dot(&(plane_i.uncertainty.normal_covariance * dr));
-    Some(normal_term + rho_residual.powi(2) / rho_variance)
+    Some(MahalanobisTerms {
+        normal: normal_term,
+        distance: rho_residual.powi(2) / rho_variance,
+    })
 }

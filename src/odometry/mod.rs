@@ -23,7 +23,7 @@ use crate::estimation::{Solution, SolveError};
 use crate::sensors::{Mount, Scan, ScannerGeometry};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use lines::{LineExtractor, LineParameters, Segment};
-use matching::{Matcher, PlaneMatch};
+use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 use planes::{Plane, PlaneExtractor, PlaneParameters, ScanLines};
 use rotation::{solve_rotation, RotationParameters};
@@ -65,13 +65,17 @@ pub struct OdometryConfig {
     /// Planes whose normal sigma exceeds this, degrees, are dropped: they add little and their
     /// error is no longer linear in the noise (predicted sigmas turn optimistic).
     pub max_sigma_normal_deg: f64,
-    /// Chi-square gate (3 degrees of freedom) on a plane match under the prior; 30.66 is the
-    /// 1 - 1e-6 point. The gate only associates: a static plane it refuses is refused because
-    /// the prior (the filter's velocity) is off, and when that plane alone sees an axis the
-    /// filter then dead-reckons along it on exactly its worst velocities. At the 99.9 % point
-    /// that selection made the 1 Hz hover's along-track position 2.5-4 times optimistic
-    /// (docs/accuracy.md, "The match gate"); moving planes are integrity's to exclude.
+    /// Chi-square gate (3 degrees of freedom) on a plane match's normal and distance under the
+    /// prior; 30.66 is the 1 - 1e-6 point. It only associates: a static plane it refuses is
+    /// refused because the predicted distance (the filter's velocity) is off, and when that
+    /// plane alone sees an axis the filter then dead-reckons along it on exactly its worst
+    /// velocities. At the 99.9 % point that selection made the 1 Hz hover's along-track
+    /// position 2.5-4 times optimistic (docs/accuracy.md, "The match gate").
     pub match_gate_chi2: f64,
+    /// Chi-square gate (2 degrees of freedom) on the normal alone; 13.82 is the 99.9 % point.
+    /// The normal is predicted with the gyro's rotation, so this one stays a real test: it
+    /// keeps a turning door's plane from being matched at all.
+    pub match_normal_gate_chi2: f64,
     /// Most Gauss-Newton steps of the rotation solve.
     pub rotation_max_iterations: usize,
     /// The rotation solve stops once a correction is below this, radians.
@@ -93,6 +97,7 @@ impl Default for OdometryConfig {
             accept_parallel_lines: false,
             max_sigma_normal_deg: 0.5,
             match_gate_chi2: 30.66,
+            match_normal_gate_chi2: 13.82,
             rotation_max_iterations: 10,
             rotation_tolerance_rad: 1e-10,
         }
@@ -123,7 +128,7 @@ impl OdometryConfig {
     /// Checks every key, naming the first bad one.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let positive = "to a finite number above 0";
-        let checks: [(&'static str, f64, bool, &'static str); 12] = [
+        let checks: [(&'static str, f64, bool, &'static str); 13] = [
             (
                 "range_sigma_m",
                 self.range_sigma_m,
@@ -182,6 +187,12 @@ impl OdometryConfig {
                 "match_gate_chi2",
                 self.match_gate_chi2,
                 self.match_gate_chi2 > 0.0,
+                positive,
+            ),
+            (
+                "match_normal_gate_chi2",
+                self.match_normal_gate_chi2,
+                self.match_normal_gate_chi2 > 0.0,
                 positive,
             ),
             (
@@ -427,7 +438,10 @@ impl Odometer {
             &previous.planes,
             &current.planes,
             prior,
-            self.config.match_gate_chi2,
+            &MatchGates {
+                total_chi2: self.config.match_gate_chi2,
+                normal_chi2: self.config.match_normal_gate_chi2,
+            },
             &mut matches,
         );
         self.solve_matched(previous, current, matches, prior, &[])
