@@ -125,6 +125,14 @@ impl fmt::Display for ConfigError {
 impl std::error::Error for ConfigError {}
 
 impl OdometryConfig {
+    /// The two match gates, as the matcher takes them.
+    pub fn match_gates(&self) -> MatchGates {
+        MatchGates {
+            total_chi2: self.match_gate_chi2,
+            normal_chi2: self.match_normal_gate_chi2,
+        }
+    }
+
     /// Checks every key, naming the first bad one.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let positive = "to a finite number above 0";
@@ -438,10 +446,7 @@ impl Odometer {
             &previous.planes,
             &current.planes,
             prior,
-            &MatchGates {
-                total_chi2: self.config.match_gate_chi2,
-                normal_chi2: self.config.match_normal_gate_chi2,
-            },
+            &self.config.match_gates(),
             &mut matches,
         );
         self.solve_matched(previous, current, matches, prior, &[])

@@ -1,6 +1,6 @@
 //! Property and bad-input tests of the geometry core on exact synthetic geometry.
 
-use super::matching::{MatchGates, Matcher};
+use super::matching::Matcher;
 use super::synthetic::{cast_scan, crossed_mounts, hallway, WorldPlane};
 use super::*;
 use crate::odometry::displacement::solve_displacement;
@@ -538,7 +538,7 @@ proptest! {
         let current = extract_at(&mut odometer, &room, j);
         let prior = prior_from(&i, &j, 0.01, 0.05);
         let mut matches = Vec::new();
-        let gates = MatchGates { total_chi2: 30.66, normal_chi2: 13.82 };
+        let gates = OdometryConfig::default().match_gates();
         Matcher::default().match_planes(&previous.planes, &current.planes, &prior, &gates, &mut matches);
         let label_i: Vec<_> = previous.planes.iter().map(|p| room_plane_of(&room, &i, p, 1e-9)).collect();
         let label_j: Vec<_> = current.planes.iter().map(|p| room_plane_of(&room, &j, p, 1e-9)).collect();
