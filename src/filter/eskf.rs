@@ -1,7 +1,7 @@
 //! The error-state EKF: IMU samples drive the nominal state and the covariance; odometry
 //! epochs and the stationary start correct them. Naming after PX4 EKF2 and Sola (2017).
 
-use nalgebra::{Matrix3, SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
@@ -186,14 +186,15 @@ impl Eskf {
     /// A filter that aligns itself from the stationary start.
     pub fn new(config: FilterConfig) -> Result<Self, ConfigError> {
         config.validate()?;
-        let covariance = initial_covariance(&config);
+        let state = NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros());
+        let covariance = initial_covariance(&config, &state.q);
         Ok(Self {
             imu_to_body: config.imu_to_body(),
             gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
             noise: ProcessNoise::new(&config),
             gate: GateThresholds::new(config.gate_probability),
             phase: FilterPhase::Aligning,
-            state: NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros()),
+            state,
             covariance,
             clone: None,
             carried: None,
@@ -222,6 +223,7 @@ impl Eskf {
         state: NominalState,
     ) -> Result<Self, ConfigError> {
         let mut filter = Self::new(config)?;
+        filter.covariance = initial_covariance(&filter.config, &state.q);
         filter.state = state;
         filter.phase = FilterPhase::Navigating;
         filter.t = Some(t);
@@ -298,7 +300,7 @@ impl Eskf {
             return ImuOutcome::Aligning;
         }
         self.state = self.means.aligned_state(&self.imu_to_body);
-        self.covariance = initial_covariance(&self.config);
+        self.covariance = initial_covariance(&self.config, &self.state.q);
         self.zero_motion = None;
         self.phase = if t - start < self.config.stationary_start_s {
             FilterPhase::StationaryStart
@@ -620,7 +622,7 @@ impl Eskf {
     /// Keeps the last finite state, restarts the covariance from the initial sigmas and drops
     /// the clone; the estimate jumps, so `reset_counter` moves.
     fn reset(&mut self, reason: ResetReason) {
-        self.covariance = initial_covariance(&self.config);
+        self.covariance = initial_covariance(&self.config, &self.state.q);
         self.clone = None;
         self.carried = None;
         self.reset_counter = self.reset_counter.wrapping_add(1);
@@ -836,16 +838,13 @@ fn sample_is_finite(sample: &ImuSample) -> bool {
     }
 }
 
-fn initial_covariance(config: &FilterConfig) -> Covariance {
+fn initial_covariance(config: &FilterConfig, attitude: &UnitQuaternion<f64>) -> Covariance {
     let deg = std::f64::consts::PI / 180.0;
     let tilt = config.initial_sigma_tilt_deg * deg;
+    let euler_sigmas = Vector3::new(tilt, tilt, config.initial_sigma_yaw_deg * deg);
     let sigmas = [
         (POS, Vector3::repeat(config.initial_sigma_position_m)),
         (VEL, Vector3::repeat(config.initial_sigma_velocity_mps)),
-        (
-            ATT,
-            Vector3::new(tilt, tilt, config.initial_sigma_yaw_deg * deg),
-        ),
         (GYRO_BIAS, Vector3::repeat(config.initial_sigma_gyro_bias)),
         (ACCEL_BIAS, Vector3::repeat(config.initial_sigma_accel_bias)),
         (GYRO_SCALE, Vector3::repeat(config.initial_sigma_gyro_scale)),
@@ -860,5 +859,24 @@ fn initial_covariance(config: &FilterConfig) -> Covariance {
             p[(at + k, at + k)] = sigma[k] * sigma[k];
         }
     }
+    p.fixed_view_mut::<3, 3>(ATT, ATT)
+        .copy_from(&euler_attitude_covariance(attitude, &euler_sigmas));
     p
+}
+
+/// The global attitude-error covariance of independent roll, pitch and yaw (ZYX Euler) errors
+/// at `attitude`. Gravity alignment fixes roll and pitch and the start convention fixes the
+/// Euler yaw; at a pitch, a roll error turns the body about an axis out of the horizontal, so
+/// the global yaw error carries part of it (sin(pitch) of it), which a diagonal prior would
+/// miss whenever the yaw sigma is small.
+pub(super) fn euler_attitude_covariance(
+    attitude: &UnitQuaternion<f64>,
+    sigmas: &Vector3<f64>,
+) -> Matrix3<f64> {
+    let (_, pitch, yaw) = attitude.euler_angles();
+    let yawed = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw);
+    let pitched = yawed * Rotation3::from_axis_angle(&Vector3::y_axis(), pitch);
+    let jacobian =
+        Matrix3::from_columns(&[pitched * Vector3::x(), yawed * Vector3::y(), Vector3::z()]);
+    jacobian * Matrix3::from_diagonal(&sigmas.component_mul(sigmas)) * jacobian.transpose()
 }

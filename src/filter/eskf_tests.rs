@@ -6,6 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::consistency::chi_square_quantile;
+use super::eskf::euler_attitude_covariance;
 use super::testkit::{self, Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
 use super::*;
 use crate::sensors::ImuSample;
@@ -412,15 +413,20 @@ fn monte_carlo_run(config: &FilterConfig, seed: u64, odometry: Odometry) -> f64 
     let accel_scale = normal(config.initial_sigma_accel_scale);
     let truth0 = trajectory.truth(0.0);
     let tilt = config.initial_sigma_tilt_deg * deg;
-    let attitude_error = normal(1.0).component_mul(&Vector3::new(
+    let euler_error = normal(1.0).component_mul(&Vector3::new(
         tilt,
         tilt,
         config.initial_sigma_yaw_deg * deg,
     ));
+    let (roll, pitch, yaw) = truth0.q.euler_angles();
     let state = NominalState {
         p: truth0.p - normal(config.initial_sigma_position_m),
         v: truth0.v - normal(config.initial_sigma_velocity_mps),
-        q: UnitQuaternion::from_scaled_axis(-attitude_error) * truth0.q,
+        q: UnitQuaternion::from_euler_angles(
+            roll - euler_error.x,
+            pitch - euler_error.y,
+            yaw - euler_error.z,
+        ),
         ..NominalState::at_rest(truth0.q, Vector3::zeros())
     };
     let mut samples = trajectory.imu_samples(0.0, 5.0, rate, false);
@@ -715,4 +721,34 @@ mod hostile_input {
             }
         }
     }
+}
+
+/// A small error in one Euler angle alone gives the global attitude error `g`, so the prior of
+/// that angle alone must be `g g^T`: at a pitch, a roll error shows in the global yaw.
+#[test]
+fn the_attitude_prior_maps_each_euler_angle_into_the_global_error() {
+    let small = 1e-6;
+    for (roll, pitch, yaw) in [(0.0, -0.17, 0.0), (0.3, 0.5, -2.0), (-0.2, -1.2, 1.0)] {
+        let attitude = UnitQuaternion::from_euler_angles(roll, pitch, yaw);
+        for axis in 0..3 {
+            let mut sigmas = Vector3::zeros();
+            sigmas[axis] = small;
+            let perturbed = UnitQuaternion::from_euler_angles(
+                roll + sigmas.x,
+                pitch + sigmas.y,
+                yaw + sigmas.z,
+            );
+            let global = (perturbed * attitude.inverse()).scaled_axis();
+            let expected = global * global.transpose();
+            let prior = euler_attitude_covariance(&attitude, &sigmas);
+            assert!(
+                (prior - expected).abs().max() < 1e-6 * small * small,
+                "axis {axis} at {:?}: {prior} against {expected}",
+                (roll, pitch, yaw)
+            );
+        }
+    }
+    let level_pitched = UnitQuaternion::from_euler_angles(0.0, -0.17, 0.0);
+    let roll_only = euler_attitude_covariance(&level_pitched, &Vector3::new(1.0, 0.0, 0.0));
+    assert!((roll_only[(2, 2)] - 0.17f64.sin().powi(2)).abs() < 1e-12);
 }
