@@ -47,13 +47,16 @@ pub struct FilterConfig {
     pub gyro_scale_random_walk: f64,
     /// Accelerometer scale-factor random walk, 1/sqrt(s).
     pub accel_scale_random_walk: f64,
-    /// Initial position sigma, m (the origin is defined at the start, so this is small).
+    /// Initial position sigma, m. The origin is defined at the start, so the position is exact
+    /// there; the default only keeps the covariance positive definite.
     pub initial_sigma_position_m: f64,
     /// Initial velocity sigma, m/s.
     pub initial_sigma_velocity_mps: f64,
-    /// Initial roll and pitch sigma after gravity alignment, degrees.
+    /// Initial roll and pitch (ZYX Euler) sigma after gravity alignment, degrees.
     pub initial_sigma_tilt_deg: f64,
-    /// Initial yaw sigma, degrees (yaw 0 defines the local north at the start).
+    /// Initial Euler yaw sigma, degrees. Yaw 0 defines the local north at the start, so it is
+    /// exact there, like the position; the global yaw error still takes its share of the roll
+    /// error at a pitch (`euler_attitude_covariance`).
     pub initial_sigma_yaw_deg: f64,
     /// Initial gyro bias sigma after the stationary mean rate was removed, rad/s.
     pub initial_sigma_gyro_bias: f64,
@@ -107,10 +110,10 @@ impl Default for FilterConfig {
             accel_bias_random_walk: 15e-6 * STANDARD_GRAVITY / bias_settling_s.sqrt(),
             gyro_scale_random_walk: 1e-6,
             accel_scale_random_walk: 1e-6,
-            initial_sigma_position_m: 0.01,
+            initial_sigma_position_m: 1e-4,
             initial_sigma_velocity_mps: 0.1,
             initial_sigma_tilt_deg: 2.0,
-            initial_sigma_yaw_deg: 0.1,
+            initial_sigma_yaw_deg: 1e-3,
             initial_sigma_gyro_bias: 0.1 * DEG,
             initial_sigma_accel_bias: 0.05,
             initial_sigma_gyro_scale: 0.005,
