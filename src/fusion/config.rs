@@ -30,10 +30,16 @@ pub struct FusionConfig {
     pub measurement_covariance_scale: f64,
     /// Whether the filter models the noise consecutive relative poses share through the planes
     /// of their common epoch (`shared_noise`). Without it, their telescoping errors are fused
-    /// as independent and the filter is conservative. Default true; at 10 Hz with a slowly
-    /// moving door in view, which integrity cannot see in 0.1 s, the model is optimistic on
-    /// velocity (docs/accuracy.md, "Shared plane noise"), and false is the safer choice.
+    /// as independent and the filter is conservative. Default true; at 10 Hz with a swinging
+    /// door in view, whose slow ends integrity cannot see in 0.1 s, the model is still somewhat
+    /// optimistic on position and velocity (docs/accuracy.md, "What remains"), and false is the
+    /// conservative choice there.
     pub shared_plane_noise: bool,
+    /// Baseline, s, of the plane confirmation (`confirmation`): above 1 Hz a plane enters the
+    /// solve only if it also matches a plane of the epoch this far back, where a fictitious
+    /// plane (two lines of different surfaces) or a slowly turning door has left the match gate.
+    /// Default 1.0 s; 0 turns it off. No effect when epochs are at least this far apart.
+    pub plane_confirmation_s: f64,
 }
 
 impl Default for FusionConfig {
@@ -46,6 +52,7 @@ impl Default for FusionConfig {
             scan_stale_s: 1.0,
             measurement_covariance_scale: 1.0,
             shared_plane_noise: true,
+            plane_confirmation_s: 1.0,
         }
     }
 }
@@ -74,9 +81,10 @@ pub enum FusionError {
         value: f64,
         expected: &'static str,
     },
-    #[error("fusion.epoch_rate_hz = {rate} needs {needed:.2} s of pose history but filter.pose_history_s = {history}: raise filter.pose_history_s or the epoch rate")]
+    #[error("fusion.epoch_rate_hz = {rate} with fusion.plane_confirmation_s = {confirmation} needs {needed:.2} s of pose history but filter.pose_history_s = {history}: raise filter.pose_history_s, or the epoch rate, or lower the confirmation")]
     HistoryTooShort {
         rate: f64,
+        confirmation: f64,
         history: f64,
         needed: f64,
     },
@@ -93,7 +101,7 @@ pub enum FusionError {
 impl FusionConfig {
     pub fn validate(&self) -> Result<(), FusionError> {
         let positive = "a finite number above 0";
-        let checks: [(&'static str, f64, bool, &'static str); 5] = [
+        let checks: [(&'static str, f64, bool, &'static str); 6] = [
             (
                 "measurement_covariance_scale",
                 self.measurement_covariance_scale,
@@ -124,6 +132,12 @@ impl FusionConfig {
                 self.scan_stale_s > 0.0,
                 positive,
             ),
+            (
+                "plane_confirmation_s",
+                self.plane_confirmation_s,
+                self.plane_confirmation_s >= 0.0,
+                "a finite number of 0 (off) or more",
+            ),
         ];
         match checks
             .into_iter()
@@ -142,6 +156,12 @@ impl FusionConfig {
     pub fn epoch_interval_s(&self) -> f64 {
         1.0 / self.epoch_rate_hz
     }
+
+    /// How far back the filter's pose history must reach: the previous epoch, or the plane
+    /// confirmation's keyframe.
+    fn lookback_s(&self) -> f64 {
+        self.epoch_interval_s().max(self.plane_confirmation_s)
+    }
 }
 
 impl FusionSettings {
@@ -151,11 +171,11 @@ impl FusionSettings {
         self.odometry.validate()?;
         self.integrity.validate()?;
         self.filter.validate()?;
-        let needed =
-            self.fusion.epoch_interval_s() + self.fusion.max_scan_skew_s + HISTORY_MARGIN_S;
+        let needed = self.fusion.lookback_s() + self.fusion.max_scan_skew_s + HISTORY_MARGIN_S;
         if needed > self.filter.pose_history_s {
             return Err(FusionError::HistoryTooShort {
                 rate: self.fusion.epoch_rate_hz,
+                confirmation: self.fusion.plane_confirmation_s,
                 history: self.filter.pose_history_s,
                 needed,
             });

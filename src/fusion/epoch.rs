@@ -15,8 +15,25 @@ use crate::filter::{
     RelativeTranslation,
 };
 use crate::integrity::EpochReport;
+use crate::odometry::matching;
+use crate::odometry::planes::Plane;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
 use crate::sensors::Scan;
+
+/// How an epoch's planes are confirmed (`confirmation`).
+// It lives on the stack for one call; boxing the prior would allocate every epoch.
+#[allow(clippy::large_enum_variant)]
+enum Confirmation {
+    /// The test is off, or the previous epoch is already a baseline back.
+    NotNeeded,
+    /// No remembered epoch is a baseline back, or the filter cannot bridge it yet.
+    Unavailable,
+    /// Against the remembered epoch `keyframe`, under the filter's relative pose from it.
+    Against {
+        keyframe: usize,
+        prior: RelativePose,
+    },
+}
 
 /// The solves integrity let through, with the matches they left out.
 struct Cleared {
@@ -30,14 +47,22 @@ struct Cleared {
 impl Fusion {
     pub(super) fn run_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
         let mut current = std::mem::take(&mut self.current);
-        self.extract(scans, t_ref, &mut current);
+        let confirmed = self.extract(scans, t_ref, &mut current);
         let mut record = planes_record(&current);
         let reference = self.reference.take();
+        let solvable = reference.as_ref().filter(|r| r.cloned);
+        record.unconfirmed_planes = match (confirmed, solvable) {
+            (true, _) => current.refused,
+            (false, Some(_)) => current.planes.len(),
+            (false, None) => 0,
+        };
         let mut noise_maps = Vec::new();
-        if let Some(reference) = reference.as_ref().filter(|r| r.cloned) {
+        if let Some(reference) = solvable.filter(|_| confirmed) {
             record.t_previous = Some(reference.planes.t_ref);
             noise_maps = self.solve_and_fuse(reference, &current, &mut record);
         }
+        let (baseline, tolerance) = self.confirmation_baseline();
+        self.recent.remember(&current, baseline, tolerance);
         let cloned = self.filter.clone_pose().is_ok();
         self.reference = Some(Reference {
             planes: current,
@@ -49,8 +74,10 @@ impl Fusion {
     }
 
     /// Planes of the two scans in the body frame at `t_ref`, deskewed with the filter's poses
-    /// (no motion assumed before the filter is aligned).
-    fn extract(&mut self, scans: &[Scan; 2], t_ref: f64, out: &mut EpochPlanes) {
+    /// (no motion assumed before the filter is aligned), each confirmed by the keyframe
+    /// (`confirmation`) when the test applies. Returns false when it applies but there is no
+    /// keyframe the filter can bridge yet: then no plane is confirmed.
+    fn extract(&mut self, scans: &[Scan; 2], t_ref: f64, out: &mut EpochPlanes) -> bool {
         let motion = MotionModel::new(&self.filter);
         let reference = motion.as_ref().map(|m| m.pose(t_ref));
         let pose_at = |t: f64| -> Isometry3<f64> {
@@ -59,8 +86,69 @@ impl Fusion {
                 _ => Isometry3::identity(),
             }
         };
+        let scans = [&scans[0], &scans[1]];
+        let (keyframe, prior) = match self.confirmation(t_ref) {
+            Confirmation::NotNeeded => {
+                self.odometer.extract_into(scans, t_ref, &pose_at, out);
+                return true;
+            }
+            Confirmation::Unavailable => {
+                self.odometer.extract_into(scans, t_ref, &pose_at, out);
+                return false;
+            }
+            Confirmation::Against { keyframe, prior } => (self.recent.at(keyframe), prior),
+        };
+        let gates = self.odometer.config().match_gates();
+        // The keyframe's own screened planes may have been re-paired around a refused one, and
+        // its unscreened ones hold what a refusal there took out: a surface is in one or both.
+        let mut admit = |plane: &Plane| {
+            [&keyframe.planes, &keyframe.unscreened]
+                .iter()
+                .any(|planes| matching::has_counterpart(planes, plane, &prior, &gates))
+        };
         self.odometer
-            .extract_into([&scans[0], &scans[1]], t_ref, &pose_at, out);
+            .extract_admitted_into(scans, t_ref, &pose_at, &mut admit, out);
+        true
+    }
+
+    /// What the planes of an epoch at `t_ref` are confirmed against.
+    fn confirmation(&self, t_ref: f64) -> Confirmation {
+        let (baseline, tolerance) = self.confirmation_baseline();
+        let previous = self.reference.as_ref().map(|r| r.planes.t_ref);
+        if baseline == 0.0 || previous.is_some_and(|t| t_ref - t >= baseline - tolerance) {
+            return Confirmation::NotNeeded;
+        }
+        let against = self
+            .recent
+            .keyframe_before(t_ref, baseline, tolerance)
+            .and_then(|keyframe| {
+                let prior = self.odometer_prior(self.recent.at(keyframe).t_ref, t_ref)?;
+                Some(Confirmation::Against { keyframe, prior })
+            });
+        against.unwrap_or(Confirmation::Unavailable)
+    }
+
+    /// The confirmation's baseline and how early an epoch may be against it: epochs come half
+    /// an epoch interval early or late.
+    fn confirmation_baseline(&self) -> (f64, f64) {
+        (
+            self.config.plane_confirmation_s,
+            0.5 * self.config.epoch_interval_s(),
+        )
+    }
+
+    /// The filter's relative pose from `t_ref` to `t` as the odometer's prior.
+    fn odometer_prior(&self, t_ref: f64, t: f64) -> Option<RelativePose> {
+        let prior = self.filter.relative_pose(t_ref, t)?;
+        // The filter's rotation covariance is of a right perturbation (body j); the odometer
+        // wants a left one (body i).
+        let c = prior.rotation.to_rotation_matrix().into_inner();
+        Some(RelativePose {
+            rotation: prior.rotation,
+            translation: prior.translation,
+            rotation_covariance: c * prior.rotation_covariance * c.transpose(),
+            translation_covariance: prior.translation_covariance,
+        })
     }
 
     /// Returns how the current planes entered the fused relative pose.
@@ -71,18 +159,9 @@ impl Fusion {
         record: &mut EpochRecord,
     ) -> Vec<PlaneNoiseMap> {
         let previous = &reference.planes;
-        let Some(prior) = self.filter.relative_pose(previous.t_ref, current.t_ref) else {
+        let Some(prior) = self.odometer_prior(previous.t_ref, current.t_ref) else {
             record.outcome = EpochOutcome::Reference;
             return Vec::new();
-        };
-        // The filter's rotation covariance is of a right perturbation (body j); the odometer
-        // wants a left one (body i).
-        let c = prior.rotation.to_rotation_matrix().into_inner();
-        let prior = RelativePose {
-            rotation: prior.rotation,
-            translation: prior.translation,
-            rotation_covariance: c * prior.rotation_covariance * c.transpose(),
-            translation_covariance: prior.translation_covariance,
         };
         let epoch = self.odometer.solve(previous, current, &prior);
         let anchored = Anchored::new(previous, current, &epoch, &prior);
@@ -281,6 +360,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         matched: 0,
         used: 0,
         excluded_planes: Vec::new(),
+        unconfirmed_planes: 0,
         unobservable_displacement: Vec::new(),
         status: None,
         integrity: None,

@@ -34,6 +34,8 @@ pub struct EpochCounts {
     pub update_failed: u64,
     /// Fused (accepted by the gate), whatever the integrity verdict.
     pub fused: u64,
+    /// Epochs that left at least one matched plane out for want of confirmation.
+    pub with_unconfirmed: u64,
 }
 
 impl EpochCounts {
@@ -51,6 +53,9 @@ impl EpochCounts {
             EpochOutcome::RejectedByGate => self.rejected_by_gate += 1,
             EpochOutcome::UpdateFailed { .. } => self.update_failed += 1,
             _ => {}
+        }
+        if record.unconfirmed_planes > 0 {
+            self.with_unconfirmed += 1;
         }
     }
 }

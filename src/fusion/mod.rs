@@ -10,6 +10,7 @@
 mod anchor;
 pub mod clock;
 pub mod config;
+mod confirmation;
 mod epoch;
 pub mod evaluate;
 pub mod monte_carlo;
@@ -72,6 +73,8 @@ pub struct Fusion {
     reference: Option<Reference>,
     /// Storage for the current epoch's planes, swapped with the reference's.
     current: EpochPlanes,
+    /// Epochs back to the plane confirmation's baseline.
+    recent: confirmation::RecentEpochs,
     integrity: Option<IntegrityStatus>,
     propagated: u64,
     counters: FusionCounters,
@@ -94,6 +97,7 @@ impl Fusion {
             last_pair: None,
             reference: None,
             current: EpochPlanes::default(),
+            recent: confirmation::RecentEpochs::default(),
             integrity: None,
             propagated: 0,
             counters: FusionCounters::default(),

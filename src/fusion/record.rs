@@ -89,6 +89,10 @@ pub struct EpochRecord {
     pub used: usize,
     /// Ids (in this epoch's planes) of the planes integrity excluded.
     pub excluded_planes: Vec<usize>,
+    /// Planes left out for want of confirmation (`fusion.plane_confirmation_s`): candidates
+    /// no plane of the epoch that far back agrees with, whose lines went to other pairs; and,
+    /// while the filter's poses do not reach that far back yet, every plane (none is matched).
+    pub unconfirmed_planes: usize,
     /// Directions (body i) no matched plane constrained: anchored to the filter's prior for
     /// the solve and left out of the fused displacement.
     pub unobservable_displacement: Vec<[f64; 3]>,

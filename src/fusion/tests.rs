@@ -48,6 +48,16 @@ fn defaults_validate_and_bad_keys_name_themselves() {
     let error = settings.validate().unwrap_err().to_string();
     assert!(error.contains("filter.pose_history_s"), "{error}");
     assert!(!error.contains('\n'));
+    let mut settings = FusionSettings::default();
+    settings.fusion.plane_confirmation_s = -1.0;
+    let error = settings.validate().unwrap_err().to_string();
+    assert!(error.contains("fusion.plane_confirmation_s"), "{error}");
+    settings.fusion.plane_confirmation_s = 1.9;
+    let error = settings.validate().unwrap_err().to_string();
+    assert!(
+        error.contains("fusion.plane_confirmation_s = 1.9"),
+        "{error}"
+    );
 }
 
 #[test]
@@ -283,4 +293,53 @@ fn pairs_complete_before_the_imu_reaches_them_are_still_fused() {
         after.iter().all(|o| *o == EpochOutcome::Fused),
         "{outcomes:?}"
     );
+}
+
+/// Above 1 Hz a plane is used only once a plane of the epoch a baseline back agrees with it:
+/// in a still scene, none in the first second after alignment (the filter has no pose that old
+/// yet), nearly all after it. At 1 Hz the previous epoch is that far back already, and no plane
+/// waits.
+#[test]
+fn planes_wait_for_confirmation_a_baseline_back_above_one_hertz() {
+    let (mut scenario, mut settings) = short_hover(4.0);
+    for scanner in &mut scenario.scanners {
+        scanner.skip = 3;
+    }
+    settings.fusion.epoch_rate_hz = 10.0;
+    let (_, records, _) = drive(&scenario, &settings, |_, _| {});
+    let solvable = |r: &&EpochRecord| r.t_previous.is_some() || r.unconfirmed_planes > 0;
+    let first = records
+        .iter()
+        .find(solvable)
+        .expect("an epoch after alignment")
+        .t;
+    // The filter's first pose is an epoch before the first solved one.
+    let early: Vec<_> = records
+        .iter()
+        .filter(|r| r.t >= first && r.t - first < 0.85)
+        .collect();
+    assert!(
+        early.len() >= 5,
+        "{} epochs in the first second",
+        early.len()
+    );
+    for record in &early {
+        assert!(record.planes >= 4, "at {}", record.t);
+        assert_eq!(record.unconfirmed_planes, record.planes, "at {}", record.t);
+        assert_eq!((record.matched, record.used), (0, 0), "at {}", record.t);
+    }
+    let later: Vec<_> = records.iter().filter(|r| r.t - first >= 1.05).collect();
+    let planes: usize = later.iter().map(|r| r.planes).sum();
+    let unconfirmed: usize = later.iter().map(|r| r.unconfirmed_planes).sum();
+    assert!(later.len() >= 15, "{} epochs", later.len());
+    assert!(
+        unconfirmed * 20 < planes,
+        "{unconfirmed} unconfirmed, {planes} planes"
+    );
+    assert!(later.iter().all(|r| r.used >= 4), "{later:?}");
+
+    settings.fusion.epoch_rate_hz = 1.0;
+    let (_, records, _) = drive(&short_hover(4.0).0, &settings, |_, _| {});
+    assert!(records.iter().any(|r| r.used > 0));
+    assert!(records.iter().all(|r| r.unconfirmed_planes == 0));
 }

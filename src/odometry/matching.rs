@@ -44,12 +44,11 @@ impl Matcher {
                 let Some(terms) = mahalanobis_terms(plane_i, plane_j, prior) else {
                     continue;
                 };
-                let distance_squared = terms.normal + terms.distance;
-                if terms.normal <= gates.normal_chi2 && distance_squared <= gates.total_chi2 {
+                if gates.admit(&terms) {
                     self.candidates.push(PlaneMatch {
                         previous: i,
                         current: j,
-                        distance_squared,
+                        distance_squared: terms.normal + terms.distance,
                     });
                 }
             }
@@ -78,6 +77,27 @@ impl Matcher {
 pub struct MatchGates {
     pub total_chi2: f64,
     pub normal_chi2: f64,
+}
+
+impl MatchGates {
+    /// Whether a pair with these terms passes both gates.
+    pub fn admit(&self, terms: &MahalanobisTerms) -> bool {
+        terms.normal <= self.normal_chi2 && terms.normal + terms.distance <= self.total_chi2
+    }
+}
+
+/// Whether some plane of `previous` (epoch i) passes `gates` with `plane` (of epoch j) under
+/// `prior`, whatever else it matches: the one-to-one assignment is for solving, and a surface
+/// seen as two planes at j is still one surface at i.
+pub fn has_counterpart(
+    previous: &[Plane],
+    plane: &Plane,
+    prior: &RelativePose,
+    gates: &MatchGates,
+) -> bool {
+    previous.iter().any(|plane_i| {
+        mahalanobis_terms(plane_i, plane, prior).is_some_and(|terms| gates.admit(&terms))
+    })
 }
 
 /// The normal's (2 degrees of freedom) and the distance's (1) share of the squared Mahalanobis

@@ -304,6 +304,13 @@ pub struct EpochPlanes {
     pub readings: [usize; 2],
     /// Lines found per scanner.
     pub lines: [usize; 2],
+    /// The planes the lines make without the admission test of
+    /// `Odometer::extract_admitted_into` (the same as `planes` without one): with `planes`,
+    /// what a later epoch's planes are confirmed against.
+    pub unscreened: Vec<Plane>,
+    /// Candidates `admit` refused whose lines were still free: left out for want of
+    /// confirmation, their lines given to other pairs.
+    pub refused: usize,
 }
 
 /// The outcome of one epoch pair: matches and both solves, re-solvable with exclusions.
@@ -408,6 +415,19 @@ impl Odometer {
         pose_at: PoseAt<'_>,
         out: &mut EpochPlanes,
     ) {
+        self.extract_admitted_into(scans, t_ref, pose_at, &mut |_| true, out);
+    }
+
+    /// As `extract_into`, keeping only the planes `admit` accepts: a refused candidate does
+    /// not take its lines, which stay free for the next pair.
+    pub fn extract_admitted_into(
+        &mut self,
+        scans: [&Scan; 2],
+        t_ref: f64,
+        pose_at: PoseAt<'_>,
+        admit: &mut dyn FnMut(&Plane) -> bool,
+        out: &mut EpochPlanes,
+    ) {
         out.t_ref = t_ref;
         for (k, scan) in scans.into_iter().enumerate() {
             let setup = &self.scanners[k];
@@ -430,8 +450,13 @@ impl Odometer {
             beams: &self.beams[k],
             range_sigma: sigmas[k],
         });
-        self.planes
-            .extract(scan_lines, &self.config.plane_parameters(), &mut out.planes);
+        out.refused = self.planes.extract(
+            scan_lines,
+            &self.config.plane_parameters(),
+            admit,
+            &mut out.planes,
+            &mut out.unscreened,
+        );
     }
 
     /// Matches `current` (epoch j) to `previous` (epoch i) under `prior` and solves both.

@@ -82,14 +82,24 @@ pub struct PlaneExtractor {
 }
 
 impl PlaneExtractor {
-    /// Fills `out` (cleared first) with the planes found from the two scanners' lines.
+    /// Fills `out` (cleared first) with the planes found from the two scanners' lines that
+    /// `admit` accepts, and `unscreened` with those found without the test; returns how many
+    /// it refused whose lines were still free (their lines go to the next pairs).
     pub fn extract(
         &mut self,
         scans: [ScanLines; 2],
         parameters: &PlaneParameters,
+        admit: &mut dyn FnMut(&Plane) -> bool,
         out: &mut Vec<Plane>,
-    ) {
-        out.clear();
+        unscreened: &mut Vec<Plane>,
+    ) -> usize {
+        self.find_candidates(&scans, parameters);
+        self.assign(&scans, parameters, &mut |_| true, unscreened);
+        self.assign(&scans, parameters, admit, out)
+    }
+
+    /// Every pair of lines that makes a plane, best first: crossing pairs, then by sigma.
+    fn find_candidates(&mut self, scans: &[ScanLines; 2], parameters: &PlaneParameters) {
         self.candidates.clear();
         for i in 0..scans[0].segments.len() {
             for j in 0..scans[1].segments.len() {
@@ -107,7 +117,7 @@ impl PlaneExtractor {
                 } else {
                     [b, a]
                 };
-                if let Some(plane) = plane_from_pair(&scans, pair, parameters) {
+                if let Some(plane) = plane_from_pair(scans, pair, parameters) {
                     self.candidates.push(plane);
                 }
             }
@@ -117,10 +127,23 @@ impl PlaneExtractor {
                 .partial_cmp(&(!q.crossing, q.uncertainty.sigma_normal))
                 .unwrap_or(std::cmp::Ordering::Equal)
         });
-        for (used, scan) in self.used.iter_mut().zip(&scans) {
+    }
+
+    /// Gives each line to the best admitted candidate that wants it; returns the candidates
+    /// refused whose lines were still free.
+    fn assign(
+        &mut self,
+        scans: &[ScanLines; 2],
+        parameters: &PlaneParameters,
+        admit: &mut dyn FnMut(&Plane) -> bool,
+        out: &mut Vec<Plane>,
+    ) -> usize {
+        out.clear();
+        for (used, scan) in self.used.iter_mut().zip(scans) {
             used.clear();
             used.resize(scan.segments.len(), false);
         }
+        let mut refused = 0;
         for candidate in &self.candidates {
             if candidate
                 .lines
@@ -129,16 +152,21 @@ impl PlaneExtractor {
             {
                 continue;
             }
+            if !admit(candidate) {
+                refused += 1;
+                continue;
+            }
             for l in candidate.lines {
                 self.used[l.scanner][l.segment] = true;
             }
             let mut plane = *candidate;
-            plane.confirmed = has_third_line(&plane, &scans, parameters);
+            plane.confirmed = has_third_line(&plane, scans, parameters);
             if plane.confirmed || !parameters.require_third_line {
                 plane.id = out.len();
                 out.push(plane);
             }
         }
+        refused
     }
 }
 
