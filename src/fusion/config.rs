@@ -157,6 +157,18 @@ impl FusionConfig {
         1.0 / self.epoch_rate_hz
     }
 
+    /// Whether epochs come often enough for the plane confirmation to apply: it is on and the
+    /// previous epoch is less than its baseline back (`confirmation_tolerance_s` early counts).
+    pub(super) fn confirms_planes(&self) -> bool {
+        self.plane_confirmation_s > 0.0
+            && self.epoch_interval_s() < self.plane_confirmation_s - self.confirmation_tolerance_s()
+    }
+
+    /// How early an epoch may come against the confirmation's baseline: half an interval.
+    pub(super) fn confirmation_tolerance_s(&self) -> f64 {
+        0.5 * self.epoch_interval_s()
+    }
+
     /// How far back the filter's pose history must reach: the previous epoch, or the plane
     /// confirmation's keyframe.
     fn lookback_s(&self) -> f64 {

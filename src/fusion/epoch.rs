@@ -61,8 +61,10 @@ impl Fusion {
             record.t_previous = Some(reference.planes.t_ref);
             noise_maps = self.solve_and_fuse(reference, &current, &mut record);
         }
-        let (baseline, tolerance) = self.confirmation_baseline();
-        self.recent.remember(&current, baseline, tolerance);
+        if self.config.confirms_planes() {
+            let (baseline, tolerance) = self.confirmation_baseline();
+            self.recent.remember(&current, baseline, tolerance);
+        }
         let cloned = self.filter.clone_pose().is_ok();
         self.reference = Some(Reference {
             planes: current,
@@ -88,19 +90,16 @@ impl Fusion {
         };
         let scans = [&scans[0], &scans[1]];
         let (keyframe, prior) = match self.confirmation(t_ref) {
-            Confirmation::NotNeeded => {
-                self.odometer.extract_into(scans, t_ref, &pose_at, out);
-                return true;
-            }
-            Confirmation::Unavailable => {
-                self.odometer.extract_into(scans, t_ref, &pose_at, out);
-                return false;
-            }
             Confirmation::Against { keyframe, prior } => (self.recent.at(keyframe), prior),
+            unscreened => {
+                self.odometer.extract_into(scans, t_ref, &pose_at, out);
+                return matches!(unscreened, Confirmation::NotNeeded);
+            }
         };
         let gates = self.odometer.config().match_gates();
         // The keyframe's own screened planes may have been re-paired around a refused one, and
-        // its unscreened ones hold what a refusal there took out: a surface is in one or both.
+        // its unscreened ones (if it refused any) hold what a refusal there took out: a surface
+        // is in one or both.
         let mut admit = |plane: &Plane| {
             [&keyframe.planes, &keyframe.unscreened]
                 .iter()
@@ -115,7 +114,10 @@ impl Fusion {
     fn confirmation(&self, t_ref: f64) -> Confirmation {
         let (baseline, tolerance) = self.confirmation_baseline();
         let previous = self.reference.as_ref().map(|r| r.planes.t_ref);
-        if baseline == 0.0 || previous.is_some_and(|t| t_ref - t >= baseline - tolerance) {
+        // A late epoch (after a gap) is itself a baseline back from the previous one.
+        if !self.config.confirms_planes()
+            || previous.is_some_and(|t| t_ref - t >= baseline - tolerance)
+        {
             return Confirmation::NotNeeded;
         }
         let against = self
@@ -128,12 +130,11 @@ impl Fusion {
         against.unwrap_or(Confirmation::Unavailable)
     }
 
-    /// The confirmation's baseline and how early an epoch may be against it: epochs come half
-    /// an epoch interval early or late.
+    /// The confirmation's baseline and how early an epoch may come against it.
     fn confirmation_baseline(&self) -> (f64, f64) {
         (
             self.config.plane_confirmation_s,
-            0.5 * self.config.epoch_interval_s(),
+            self.config.confirmation_tolerance_s(),
         )
     }
 

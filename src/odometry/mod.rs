@@ -305,8 +305,8 @@ pub struct EpochPlanes {
     /// Lines found per scanner.
     pub lines: [usize; 2],
     /// The planes the lines make without the admission test of
-    /// `Odometer::extract_admitted_into` (the same as `planes` without one): with `planes`,
-    /// what a later epoch's planes are confirmed against.
+    /// `Odometer::extract_admitted_into`, when it refused any (empty otherwise: they are
+    /// `planes`). With `planes`, what a later epoch's planes are confirmed against.
     pub unscreened: Vec<Plane>,
     /// Candidates `admit` refused whose lines were still free: left out for want of
     /// confirmation, their lines given to other pairs.

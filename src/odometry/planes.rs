@@ -83,8 +83,9 @@ pub struct PlaneExtractor {
 
 impl PlaneExtractor {
     /// Fills `out` (cleared first) with the planes found from the two scanners' lines that
-    /// `admit` accepts, and `unscreened` with those found without the test; returns how many
-    /// it refused whose lines were still free (their lines go to the next pairs).
+    /// `admit` accepts; returns how many it refused whose lines were still free (their lines go
+    /// to the next pairs). Only then is `unscreened` filled with the planes found without the
+    /// test; it is left empty when nothing was refused, as they would be `out`.
     pub fn extract(
         &mut self,
         scans: [ScanLines; 2],
@@ -94,8 +95,12 @@ impl PlaneExtractor {
         unscreened: &mut Vec<Plane>,
     ) -> usize {
         self.find_candidates(&scans, parameters);
-        self.assign(&scans, parameters, &mut |_| true, unscreened);
-        self.assign(&scans, parameters, admit, out)
+        let refused = self.assign(&scans, parameters, admit, out);
+        unscreened.clear();
+        if refused > 0 {
+            self.assign(&scans, parameters, &mut |_| true, unscreened);
+        }
+        refused
     }
 
     /// Every pair of lines that makes a plane, best first: crossing pairs, then by sigma.
