@@ -16,8 +16,11 @@ use crate::odometry::planes::{LineRef, Plane};
 use crate::odometry::uncertainty::PlaneUncertainty;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
 
-/// Smallest sigma given to an anchor, m: keeps its row's weight within the condition limit.
+/// Smallest and largest sigma given to an anchor, m: they keep its row's weight within the
+/// condition limit of the solve. Its value along its direction is never fused, so a vague
+/// prior (a start in motion) must not make the solve refuse the planes' own directions.
 const MIN_ANCHOR_SIGMA_M: f64 = 0.01;
+const MAX_ANCHOR_SIGMA_M: f64 = 0.1;
 
 /// An epoch's planes and matches with one pseudo-plane per unobservable direction appended.
 pub(super) struct Anchored {
@@ -62,7 +65,7 @@ impl Anchored {
             let sigma = u
                 .dot(&(prior.translation_covariance * u))
                 .sqrt()
-                .max(MIN_ANCHOR_SIGMA_M);
+                .clamp(MIN_ANCHOR_SIGMA_M, MAX_ANCHOR_SIGMA_M);
             anchored.push(u, sigma);
         }
         Some(anchored)

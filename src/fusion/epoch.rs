@@ -2,7 +2,7 @@
 //! against the previous epoch under the filter's prior, test integrity, and fuse what passed
 //! against the clone of the previous epoch's pose; then clone the pose at this epoch.
 
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 use super::anchor::Anchored;
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
@@ -39,7 +39,10 @@ enum Confirmation {
 struct Cleared {
     rotation: Option<Solution>,
     displacement: Option<Solution>,
-    /// Observable directions of the displacement (all but the anchored ones).
+    /// Directions of the rotation (left perturbation, body-i axes) no test protects.
+    rotation_unprotected: Vec<Vector3<f64>>,
+    /// Observable directions of the displacement: all but the anchored ones and those no test
+    /// protects.
     displacement_observability: Observability,
     excluded: Vec<usize>,
 }
@@ -253,20 +256,22 @@ impl Fusion {
         report: &EpochReport,
         anchored: Option<&Anchored>,
     ) -> Cleared {
-        let displacement_observability = anchored.map_or_else(Observability::full, |a| {
-            Observability::from_unobservable(&a.unobservable)
-        });
         if !self.config.exclusion {
             return Cleared {
                 rotation: epoch.rotation.as_ref().ok().cloned(),
+                rotation_unprotected: Vec::new(),
+                displacement_observability: anchored.map_or_else(Observability::full, |a| {
+                    Observability::from_unobservable(&a.unobservable)
+                }),
                 displacement: match anchored {
                     Some(anchored) => anchored.solve(&[]).ok(),
                     None => epoch.displacement.as_ref().ok().cloned(),
                 },
-                displacement_observability,
                 excluded: Vec::new(),
             };
         }
+        let mut unobservable = anchored.map_or_else(Vec::new, |a| a.unobservable.clone());
+        unobservable.extend(unprotected(&report.displacement));
         let part = |solve: &crate::integrity::SolveReport| match (&report.status, &solve.status) {
             (IntegrityStatus::DetectedNotIsolable, _) => None,
             (_, status) if status.usable() => solve.solution.clone(),
@@ -274,8 +279,9 @@ impl Fusion {
         };
         Cleared {
             rotation: part(&report.rotation),
+            rotation_unprotected: unprotected(&report.rotation),
             displacement: part(&report.displacement),
-            displacement_observability,
+            displacement_observability: Observability::from_unobservable(&unobservable),
             excluded: report.excluded.clone(),
         }
     }
@@ -289,10 +295,15 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelat
         let c = UnitQuaternion::from_scaled_axis(solution.x)
             .to_rotation_matrix()
             .into_inner();
+        let unprotected: Vec<Vector3<f64>> = cleared
+            .rotation_unprotected
+            .iter()
+            .map(|u| c.transpose() * u)
+            .collect();
         RelativeRotation {
             rotation_vector: solution.x,
             covariance: symmetric(c.transpose() * solution.covariance * c) * scale,
-            observability: Observability::full(),
+            observability: Observability::from_unobservable(&unprotected),
         }
     });
     let translation = cleared
@@ -335,6 +346,14 @@ fn describe_solve(
         .unwrap_or_default();
     record.status = Some(report.status.clone());
     record.integrity = Some(report);
+}
+
+/// Directions of a solve's estimate that a fault on a plane alone in observing them could move
+/// unseen (see `SolveTest::unprotected`).
+fn unprotected(solve: &crate::integrity::SolveReport) -> Vec<Vector3<f64>> {
+    solve.test.as_ref().map_or_else(Vec::new, |test| {
+        test.unprotected.iter().map(|&u| Vector3::from(u)).collect()
+    })
 }
 
 fn symmetric(m: Matrix3<f64>) -> Matrix3<f64> {

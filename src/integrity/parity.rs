@@ -128,6 +128,10 @@ pub struct SolveTest {
     /// Predicted sigma of each axis of the estimate, `sqrt(diag(P))`.
     pub estimate_sigmas: [f64; 3],
     pub protection: ProtectionLevels,
+    /// Unit directions of the estimate along which a bias on one plane moves it without
+    /// reaching the parity space (a plane alone in observing them): no test can catch a fault
+    /// there, so the fusion must not trust the estimate along them.
+    pub unprotected: Vec<[f64; 3]>,
     pub detected: bool,
     /// Each plane's testable directions in the parity space, whitened (orthonormal columns
     /// `G_k u`), side by side; only exclusion needs them, so they are kept only when the test
@@ -364,24 +368,27 @@ pub fn test_system(
     }
     let space = parity_space(system, max_condition)?;
     let redundancy = space.parity.len();
-    let statistics: Vec<(PlaneTest, f64, Signature)> = groups
+    let statistics: Vec<PlaneStatistic> = groups
         .iter()
         .map(|rows| plane_statistic(&space, rows))
         .collect();
-    let tests = statistics
+    let tests = statistics.iter().filter(|s| s.test.dof > 0).count();
+    let signatures: Vec<Signature> = statistics.iter().map(|s| s.signature).collect();
+    let unprotected = statistics
         .iter()
-        .filter(|(plane, ..)| plane.dof > 0)
-        .count();
-    let signatures: Vec<Signature> = statistics.iter().map(|(.., s)| *s).collect();
+        .flat_map(|s| s.hidden_shifts.iter().flatten())
+        .filter(|shift| shift.norm() > 0.0)
+        .map(|shift| shift.normalize().into())
+        .collect();
     let planes: Vec<PlaneTest> = statistics
         .into_iter()
-        .map(|(plane, weakest, _)| {
+        .map(|statistic| {
             let gamma = if redundancy == 1 {
                 thresholds.sole()
             } else {
-                thresholds.per_plane(plane.dof, tests)
+                thresholds.per_plane(statistic.test.dof, tests)
             };
-            with_threshold(plane, weakest, thresholds, gamma)
+            with_threshold(statistic.test, statistic.weakest_root, thresholds, gamma)
         })
         .collect();
     let chi_square = space.parity.norm_squared();
@@ -410,6 +417,7 @@ pub fn test_system(
         residual_sigmas: residual_sigmas(system, &space.covariance),
         protection,
         estimate_sigmas,
+        unprotected,
         detected,
         signatures,
         signature_columns,
@@ -450,9 +458,18 @@ fn whitened_signatures(
     (columns, spans)
 }
 
-/// The plane's statistic and slopes, with `sqrt(lambda_min(N_k))` (0 when a direction is
-/// untestable); threshold and MDB need the number of tests and come after.
-fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64, Signature) {
+/// One plane's test before its threshold, which needs the number of tests.
+struct PlaneStatistic {
+    test: PlaneTest,
+    /// `sqrt(lambda_min(N_k))`, 0 when a direction is untestable.
+    weakest_root: f64,
+    signature: Signature,
+    /// Where a bias along each untestable direction moves the estimate (`S_k v`).
+    hidden_shifts: [Option<Vector3<f64>>; 2],
+}
+
+/// The plane's statistic and slopes, and where its untestable bias would move the estimate.
+fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> PlaneStatistic {
     let rows = plane.rows();
     let d = rows.len();
     let parity_column = |a: usize| space.parity_map.column(rows[a.min(d - 1)]);
@@ -469,17 +486,23 @@ fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64, S
         directions: [[0.0; 2]; 2],
         count: 0,
     };
+    let mut hidden_shifts = [None; 2];
+    let shift = |direction: [f64; 2]| -> Vector3<f64> {
+        (0..d)
+            .map(|a| space.gain.column(rows[a]) * direction[a])
+            .sum()
+    };
     for j in 0..d {
         let (lambda, direction) = (eigenvalues[j], eigenvectors[j]);
-        if lambda > UNTESTABLE_REDUNDANCY * scale {
+        if lambda <= UNTESTABLE_REDUNDANCY * scale {
+            hidden_shifts[j] = Some(shift(direction));
+        } else {
             dof += 1;
             signature.directions[signature.count] = direction.map(|v| v / lambda.sqrt());
             signature.count += 1;
             let along = direction[0] * projection[0] + direction[1] * projection[1];
             statistic += along * along / lambda;
-            let moved: Vector3<f64> = (0..d)
-                .map(|a| space.gain.column(rows[a]) * direction[a])
-                .sum();
+            let moved = shift(direction);
             slope_squared += moved.component_mul(&moved) / lambda;
         }
     }
@@ -506,11 +529,12 @@ fn plane_statistic(space: &ParitySpace, plane: &PlaneRows) -> (PlaneTest, f64, S
         .iter()
         .copied()
         .fold(f64::INFINITY, f64::min);
-    (
-        plane_test,
-        if all_testable { weakest.sqrt() } else { 0.0 },
+    PlaneStatistic {
+        test: plane_test,
+        weakest_root: if all_testable { weakest.sqrt() } else { 0.0 },
         signature,
-    )
+        hidden_shifts,
+    }
 }
 
 /// Eigenvalues and unit eigenvectors of the leading `d x d` (1 or 2) block of a symmetric matrix.
