@@ -8,16 +8,17 @@ use super::trajectory::Trajectory;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub const BUILTIN_NAMES: [&str; 4] = [
+pub const BUILTIN_NAMES: [&str; 5] = [
     "paper-sim",
     "office-door",
     "hallway-hover",
     "hallway-flight",
+    "bare-corridor",
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, or give a .toml file")]
+    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, or give a .toml file")]
     UnknownName(String),
     #[error("cannot read scenario file {path}: {reason}")]
     Unreadable { path: String, reason: String },
@@ -62,6 +63,7 @@ impl Scenario {
             "office-door" => Ok(builtin::office_door()),
             "hallway-hover" => Ok(builtin::hallway_hover()),
             "hallway-flight" => Ok(builtin::hallway_flight()),
+            "bare-corridor" => Ok(builtin::bare_corridor()),
             _ => Err(ScenarioError::UnknownName(name.to_string())),
         }
     }
@@ -180,7 +182,7 @@ mod tests {
         let err = Scenario::builtin("foo").unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, or give a .toml file"
+            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, or give a .toml file"
         );
         assert!(matches!(
             Scenario::resolve("foo"),
