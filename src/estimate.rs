@@ -39,6 +39,8 @@ pub struct Estimate {
     pub angular_rate: Vector3<f64>,
     pub position_covariance: Matrix3<f64>,
     pub velocity_covariance: Matrix3<f64>,
+    /// Covariance between the velocity and the attitude errors (rows velocity).
+    pub velocity_attitude_covariance: Matrix3<f64>,
     /// Attitude error covariance in the NED tangent space (roll, pitch, yaw), rad^2.
     pub attitude_covariance: Matrix3<f64>,
     pub gyro_bias: Vector3<f64>,
@@ -51,11 +53,28 @@ pub struct Estimate {
     pub since_last_fused: f64,
     /// A sensor is stale or the IMU had a gap: the estimate is dead-reckoning or worse.
     pub degraded: bool,
+    /// The filter has converged since its last start or restart; before, the autopilot must
+    /// not use the estimate, whatever its covariance says.
+    pub converged: bool,
 }
 
 impl Estimate {
     /// Velocity in the body frame, which is what PX4 and ArduPilot fuse.
     pub fn body_velocity(&self) -> Vector3<f64> {
         self.attitude.inverse_transform_vector(&self.velocity)
+    }
+
+    /// Covariance of [`Self::body_velocity`]: `v_b = R^T v` takes the velocity error and,
+    /// through the attitude error `dtheta` (global), `R^T [v]x dtheta`, which at speed or with
+    /// an uncertain heading is not negligible.
+    pub fn body_velocity_covariance(&self) -> Matrix3<f64> {
+        let to_body = self.attitude.to_rotation_matrix().into_inner().transpose();
+        let lever = self.velocity.cross_matrix();
+        let cross = self.velocity_attitude_covariance * lever.transpose();
+        let nav = self.velocity_covariance
+            + lever * self.attitude_covariance * lever.transpose()
+            + cross
+            + cross.transpose();
+        to_body * nav * to_body.transpose()
     }
 }

@@ -3,6 +3,8 @@
 //! byte for byte against what the emulators sent, and replayed to the same calls and estimates
 //! bit for bit.
 
+use ladar_odometer::daemon::config::Config;
+use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::pipeline::{EpochCounts, Estimator, EventTrace, Traced};
 use ladar_odometer::daemon::recording::{Direction, ReadMode, Recording};
 use ladar_odometer::daemon::replay::{self, ReplayOptions};
@@ -46,6 +48,7 @@ fn echoed(t: f64) -> Estimate {
         angular_rate: Vector3::zeros(),
         position_covariance: Matrix3::identity() * 0.01,
         velocity_covariance: Matrix3::identity() * 0.0025,
+        velocity_attitude_covariance: Matrix3::zeros(),
         attitude_covariance: Matrix3::identity() * 1e-4,
         gyro_bias: Vector3::zeros(),
         accel_bias: Vector3::zeros(),
@@ -53,6 +56,7 @@ fn echoed(t: f64) -> Estimate {
         integrity: Some(IntegrityStatus::Ok),
         since_last_fused: 0.0,
         degraded: false,
+        converged: true,
     }
 }
 
@@ -396,6 +400,95 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
         std::fs::read(dir.join("replay-out").join("trajectory.tum")).unwrap()
     );
     assert_replay_output_exists(&dir.join("replay-out"));
+}
+
+/// `run` with the real fusion on what `serve-emulators --config` serves for the two-scanner PX4
+/// example (issue situation 4): the still box room, the first scanner a 10 Hz URG-04LX whose
+/// pairs close 52-63 ms after their mid-scan reference time. Every solved epoch must reach the
+/// filter, and the autopilot must hear that the odometry is usable.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_px4_example_standing_in_the_box_room_fuses_its_epochs_live() {
+    let dir = scratch("box-room");
+    let example =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("config/examples/px4-two-utm30lx-usb.toml");
+    let (config, text) = Config::load_with_text(&example).unwrap();
+    let scene: SharedScene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
+    let emulators = TaskTracker::new();
+    let cancel_emulators = CancellationToken::new();
+    let models = serve::default_models(&config);
+    let served = serve::serve(
+        &config,
+        &models,
+        scene,
+        &emulators,
+        cancel_emulators.clone(),
+    )
+    .await
+    .unwrap();
+
+    // What `serve-emulators --write-config` writes, with MAVLink to a receiver here.
+    let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let autopilot_port = autopilot.local_addr().unwrap().port();
+    let received = Arc::new(Mutex::new(Vec::new()));
+    let receiver = tokio::spawn(receive_mavlink(autopilot, received.clone()));
+    let mut runnable = text.replace(
+        &format!(
+            "connection = \"{}\"",
+            config.mavlink.as_ref().unwrap().connection
+        ),
+        &format!("connection = \"udpout:127.0.0.1:{autopilot_port}\""),
+    );
+    let sensors = config.scanners.iter().map(|s| &s.connection);
+    for (emulator, original) in served.iter().zip(sensors.chain([&config.imu.connection])) {
+        runnable = runnable.replace(
+            &format!("connection = \"{original}\""),
+            &format!("connection = \"{}\"", emulator.connection),
+        );
+    }
+    let run_path = dir.join("run.toml");
+    std::fs::write(&run_path, runnable).unwrap();
+    let out = dir.join("out");
+    let cancel = CancellationToken::new();
+    let daemon = tokio::spawn(run::run(
+        RunOptions {
+            config: run_path,
+            record: Some(dir.join("live.mcap")),
+            out: Some(out.clone()),
+        },
+        |config, _| FusionEstimator::new(Some(config)),
+        cancel.clone(),
+    ));
+    // The filter aligns in the first second; epochs come at 1 Hz.
+    tokio::time::sleep(Duration::from_secs(7)).await;
+    cancel.cancel();
+    tokio::time::timeout(Duration::from_secs(10), daemon)
+        .await
+        .expect("shutdown is prompt")
+        .unwrap()
+        .unwrap();
+    cancel_emulators.cancel();
+    receiver.abort();
+
+    let epochs: Vec<serde_json::Value> = std::fs::read_to_string(out.join("epochs.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|line| serde_json::from_str(line).unwrap())
+        .collect();
+    let failed: Vec<_> = epochs
+        .iter()
+        .filter(|e| e["outcome"] == "update_failed")
+        .map(|e| &e["reason"])
+        .collect();
+    assert!(failed.is_empty(), "{failed:?}");
+    let fused = epochs.iter().filter(|e| e["outcome"] == "fused").count();
+    assert!(fused >= 3, "{fused} of {} epochs fused", epochs.len());
+    let messages = received.lock().unwrap();
+    assert!(
+        messages
+            .iter()
+            .any(|m| matches!(m, MavMessage::ODOMETRY(o) if o.quality > 0)),
+        "ODOMETRY quality stayed -1"
+    );
 }
 
 /// Each epoch's estimate went out at once (its ODOMETRY is the marked one at the epoch's time)

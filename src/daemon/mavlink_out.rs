@@ -8,6 +8,8 @@
 //! |-------------------------------------------------------------------|--------------------|
 //! | estimate degraded (stale sensor, IMU gap) or covariance not finite | -1 (failed)        |
 //! | no odometry epoch fused yet, or none for more than `stale_after_s` | -1 (failed)        |
+//! | not converged since the start or a restart                         | 0 (do not use)     |
+//! | ArduPilot profiles: largest velocity sigma above `unusable_sigma_mps` | 0 (do not use)  |
 //! | latest epoch `DetectedNotIsolable` or `UnderDetermined`            | `low` (10)         |
 //! | latest epoch `Ok`                                                  | 1-100 from sigma_v |
 //! | latest epoch `Excluded`                                            | as Ok, capped at `excluded_cap` (75) |
@@ -127,6 +129,10 @@ impl Identity {
     }
 }
 
+/// EKF3's largest body-odometry velocity error at the defaults (`EK3_VIS_VERR_MAX`, m/s): a
+/// larger sigma cannot be expressed in a confidence, so the message must not be used.
+const ARDUPILOT_UNUSABLE_SIGMA_MPS: f64 = 0.5;
+
 /// Thresholds of the quality mapping documented at the top of this module.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct QualityPolicy {
@@ -134,6 +140,11 @@ pub struct QualityPolicy {
     pub stale_after_s: f64,
     /// Velocity sigma (m/s) that earns quality 100.
     pub reference_sigma_mps: f64,
+    /// Velocity sigma (m/s) above which the estimate is not to be used at all: an axis the
+    /// surfaces have left unobserved for long. PX4 weighs each axis by the covariance it is
+    /// sent, so for it an unobserved axis costs nothing and the others stay useful (infinite
+    /// here); ArduPilot weighs the whole message by one confidence, so it must stop using it.
+    pub unusable_sigma_mps: f64,
     /// Quality while the latest epoch was not fused but an earlier one is recent.
     pub low: i8,
     /// Highest quality while planes are being excluded.
@@ -145,6 +156,7 @@ impl Default for QualityPolicy {
         Self {
             stale_after_s: 1.0,
             reference_sigma_mps: 0.05,
+            unusable_sigma_mps: f64::INFINITY,
             low: 10,
             excluded_cap: 75,
         }
@@ -152,6 +164,17 @@ impl Default for QualityPolicy {
 }
 
 impl QualityPolicy {
+    /// The default mapping, with the cut-off an autopilot that reads one number needs.
+    pub fn for_profile(profile: Profile) -> Self {
+        match profile {
+            Profile::Px4 => Self::default(),
+            Profile::Ardupilot | Profile::ArdupilotOdometry => Self {
+                unusable_sigma_mps: ARDUPILOT_UNUSABLE_SIGMA_MPS,
+                ..Self::default()
+            },
+        }
+    }
+
     /// ODOMETRY quality: -1 failed, 1 worst .. 100 best.
     pub fn quality(&self, estimate: &Estimate) -> i8 {
         let Some(sigma_v) = largest_sigma(&estimate.velocity_covariance) else {
@@ -161,6 +184,9 @@ impl QualityPolicy {
         let fresh = estimate.since_last_fused <= self.stale_after_s;
         if estimate.degraded || !fresh {
             return -1;
+        }
+        if !estimate.converged || sigma_v > self.unusable_sigma_mps {
+            return 0;
         }
         let from_covariance = (100.0 * self.reference_sigma_mps / sigma_v).clamp(1.0, 100.0) as i8;
         match &estimate.integrity {
@@ -244,9 +270,7 @@ pub fn odometry(estimate: &Estimate, quality: i8) -> MavMessage {
     let q = estimate.attitude.quaternion();
     let v = estimate.body_velocity().map(|x| x as f32);
     let w = estimate.angular_rate.map(|x| x as f32);
-    let to_body = estimate.attitude.inverse().to_rotation_matrix();
-    let body_velocity_covariance =
-        to_body.matrix() * estimate.velocity_covariance * to_body.matrix().transpose();
+    let body_velocity_covariance = estimate.body_velocity_covariance();
     // The filter does not publish a rate covariance: NaN says "unknown" to a reader that looks.
     let unknown = Matrix3::from_element(f64::NAN);
     MavMessage::ODOMETRY(apm::ODOMETRY_DATA {
@@ -467,6 +491,7 @@ mod tests {
             angular_rate: Vector3::new(0.0, 0.0, 0.1),
             position_covariance: Matrix3::from_diagonal(&Vector3::new(0.01, 0.02, 0.03)),
             velocity_covariance: Matrix3::from_diagonal(&Vector3::new(0.0025, 0.0025, 0.0025)),
+            velocity_attitude_covariance: Matrix3::zeros(),
             attitude_covariance: Matrix3::from_diagonal(&Vector3::new(1e-4, 2e-4, 3e-4)),
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
@@ -474,6 +499,7 @@ mod tests {
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.1,
             degraded: false,
+            converged: true,
         }
     }
 
@@ -586,10 +612,13 @@ mod tests {
             ],
             [1e-4, 2e-4, 3e-4]
         );
-        // NED north/east variances swap places in the body frame of a vehicle facing east.
+        // NED north/east variances swap places in the body frame of a vehicle facing east, and
+        // the attitude's sigmas turn the 2 m/s east into sideways (yaw, 3e-4 rad^2) and vertical
+        // (roll about north, 1e-4 rad^2) uncertainty: 4 m^2/s^2 times each.
         let v = &m.velocity_covariance;
-        assert!((v[0] - 0.04).abs() < 1e-7 && (v[6] - 0.01).abs() < 1e-7);
-        assert!((v[11] - 0.09).abs() < 1e-7);
+        assert!((v[0] - 0.04).abs() < 1e-7, "{}", v[0]);
+        assert!((v[6] - (0.01 + 4.0 * 3e-4)).abs() < 1e-7, "{}", v[6]);
+        assert!((v[11] - (0.09 + 4.0 * 1e-4)).abs() < 1e-7, "{}", v[11]);
         assert!(v[15].is_nan() && v[18].is_nan() && v[20].is_nan());
         assert_eq!(m.estimator_type, MavEstimatorType::MAV_ESTIMATOR_TYPE_VIO);
         assert_eq!(m.quality, 55);

@@ -169,6 +169,7 @@ mod tests {
             angular_rate: Vector3::zeros(),
             position_covariance: Matrix3::identity() * 0.01,
             velocity_covariance: Matrix3::identity() * 0.0025,
+            velocity_attitude_covariance: Matrix3::zeros(),
             attitude_covariance: Matrix3::identity() * 1e-4,
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
@@ -176,6 +177,7 @@ mod tests {
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.0,
             degraded: false,
+            converged: true,
         }
     }
 

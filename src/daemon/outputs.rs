@@ -151,6 +151,7 @@ mod tests {
             angular_rate: Vector3::zeros(),
             position_covariance: Matrix3::identity(),
             velocity_covariance: Matrix3::identity(),
+            velocity_attitude_covariance: Matrix3::zeros(),
             attitude_covariance: Matrix3::identity(),
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
@@ -158,6 +159,7 @@ mod tests {
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.0,
             degraded: false,
+            converged: true,
         }
     }
 

@@ -405,7 +405,7 @@ impl MavlinkOut {
             }
         };
         Ok(Self {
-            stream: MavlinkStream::new(profile, rate_hz, QualityPolicy::default()),
+            stream: MavlinkStream::new(profile, rate_hz, QualityPolicy::for_profile(profile)),
             identity,
             sequence: 0,
             link,

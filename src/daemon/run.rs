@@ -122,8 +122,11 @@ where
                 clock,
                 tasks_cancel.clone(),
             );
-            let stream =
-                MavlinkStream::new(section.profile, section.rate_hz(), QualityPolicy::default());
+            let stream = MavlinkStream::new(
+                section.profile,
+                section.rate_hz(),
+                QualityPolicy::for_profile(section.profile),
+            );
             Some(Feed::new(stream, messages))
         }
         None => None,

@@ -47,15 +47,41 @@ impl StationaryMeans {
         self.rate / self.weight
     }
 
+    pub fn mean_force(&self) -> Vector3<f64> {
+        self.force / self.weight
+    }
+
+    pub fn weight(&self) -> f64 {
+        self.weight
+    }
+
+    /// Whether these means show motion against `reference` (both over a body at rest would
+    /// agree to the sensor noise): the specific force turned or changed, or the rate changed.
+    pub fn departs_from(
+        &self,
+        reference: &Self,
+        max_force_change: f64,
+        max_rate_change: f64,
+    ) -> bool {
+        (self.mean_force() - reference.mean_force()).norm() > max_force_change
+            || (self.mean_rate() - reference.mean_rate()).norm() > max_rate_change
+    }
+
     /// The state at rest: roll and pitch level the mean specific force (`f = -R^T g` at
-    /// rest), yaw is 0, and the mean rate (which includes the Earth rate) is the gyro bias.
-    pub fn aligned_state(&self, imu_to_body: &UnitQuaternion<f64>) -> NominalState {
+    /// rest, and on average in a window without net acceleration), yaw is 0, and, when the
+    /// window was `still`, the mean rate (which includes the Earth rate) is the gyro bias;
+    /// in motion it is the motion, and the bias starts at 0.
+    pub fn aligned_state(&self, imu_to_body: &UnitQuaternion<f64>, still: bool) -> NominalState {
         let f = imu_to_body * (self.force / self.weight);
         let roll = (-f.y).atan2(-f.z);
         let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
         NominalState::at_rest(
             UnitQuaternion::from_euler_angles(roll, pitch, 0.0),
-            self.mean_rate(),
+            if still {
+                self.mean_rate()
+            } else {
+                Vector3::zeros()
+            },
         )
     }
 }
@@ -108,7 +134,7 @@ mod tests {
             },
             0.01,
         );
-        let state = means.aligned_state(&UnitQuaternion::identity());
+        let state = means.aligned_state(&UnitQuaternion::identity(), true);
         let (roll, pitch, yaw) = state.q.euler_angles();
         assert!((roll - 0.3).abs() < 1e-12 && (pitch + 0.2).abs() < 1e-12);
         assert_eq!(yaw, 0.0);

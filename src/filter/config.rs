@@ -77,6 +77,12 @@ pub struct FilterConfig {
     /// A sample whose specific-force magnitude differs from gravity by more than this (m/s^2)
     /// is motion, as above.
     pub stationary_max_force_error_mps2: f64,
+    /// A `zupt_interval_s` window whose mean specific force departs from the alignment's by
+    /// more than this (m/s^2) is motion, however gentle: it ends the stationary start (or,
+    /// within the alignment window, makes the start one in motion).
+    pub still_max_force_change_mps2: f64,
+    /// Likewise for the mean rate, rad/s.
+    pub still_max_rate_change: f64,
     /// Interval of the zero-velocity / zero-rate updates during the stationary start, s.
     pub zupt_interval_s: f64,
     /// Sigma of the zero-velocity pseudo-measurement, m/s (vibration, hand shake).
@@ -87,9 +93,16 @@ pub struct FilterConfig {
     pub gate_probability: f64,
     /// `"cloned"` (default) or `"velocity"`.
     pub relative_pose_update: RelativePoseUpdate,
-    /// Largest difference between a measurement's epoch times and the clone / filter times,
-    /// s; the difference is bridged with the filter's own propagated motion.
+    /// Largest difference between a measurement's epoch times and the clone / filter times
+    /// when the epoch is ahead of the filter (its newest IMU sample), s; the difference is
+    /// bridged by extrapolating the newest pose.
     pub epoch_time_tolerance_s: f64,
+    /// Largest delay of a measurement's epoch times behind the clone / filter times, s; the
+    /// delay is bridged with the recorded poses of the history. A scan pair closes only once
+    /// its scans have been sent, when the IMU has run on past the reference scanner's mid-scan
+    /// time by the rest of its revolution: 62 ms for a 10 Hz URG-04LX, plus up to one IMU
+    /// interval and the link's latency. At most `pose_history_s`.
+    pub epoch_max_delay_s: f64,
     /// IMU mount: rotation of the IMU frame into body FRD, `[roll, pitch, yaw]` in degrees,
     /// composed as in DESIGN.md 3. The lever arm is neglected (body origin at the IMU).
     pub imu_mount_rpy_deg: [f64; 3],
@@ -97,6 +110,37 @@ pub struct FilterConfig {
     pub pose_history_s: f64,
     /// Highest IMU rate expected, Hz; sizes the pose history once, at construction.
     pub max_imu_rate_hz: f64,
+    /// Velocity sigma of a start in motion (an alignment window that was not still) and of a
+    /// restart, m/s: the odometry measures the velocity within an epoch or two.
+    pub moving_start_sigma_velocity_mps: f64,
+    /// Roll and pitch sigma of a start in motion, degrees: the mean specific force over the
+    /// alignment window then holds the mean acceleration too (3 deg covers 0.5 m/s^2).
+    pub moving_start_sigma_tilt_deg: f64,
+    /// Gyro bias sigma of a start in motion, rad/s: the mean rate is motion, not bias.
+    pub moving_start_sigma_gyro_bias: f64,
+    /// The estimate counts as converged, and may go to the autopilot with a quality above 0,
+    /// once this many relative poses have been fused since the start or a restart: the first
+    /// ones linearise about a guessed velocity and tilt, and their covariance is not yet to
+    /// be believed. An axis no surface observes stays uncertain after that, and says so.
+    pub converged_after_epochs: u32,
+    /// A speed above this (m/s) is taken as a diverged filter, which then restarts.
+    pub max_speed_mps: f64,
+    /// The platform's speed prior, m/s: the sigma of its velocity on each axis at any time.
+    /// It bounds a velocity the odometry leaves unobserved (see `Eskf::bound_velocity`); raise
+    /// it for a platform that flies faster than about twice this.
+    pub speed_prior_sigma_mps: f64,
+    /// How often the speed prior is considered, s.
+    pub speed_prior_interval_s: f64,
+    /// Fused relative poses over which the divergence guard sums the NIS.
+    pub divergence_window: u32,
+    /// Relative poses refused by the gate in a row that count as divergence.
+    pub divergence_refused_in_row: u32,
+    /// A correction that moves the position by more than this (m) increments `reset_counter`,
+    /// so that the autopilot re-anchors instead of fusing the step as motion.
+    pub max_position_step_m: f64,
+    /// An IMU gap longer than this (s) restarts the filter: it aligns again, keeping its
+    /// position and heading, since the attitude and velocity could have become anything.
+    pub max_coast_s: f64,
 }
 
 impl Default for FilterConfig {
@@ -122,15 +166,29 @@ impl Default for FilterConfig {
             stationary_start_s: 40.0,
             stationary_max_rate: 0.05,
             stationary_max_force_error_mps2: 0.5,
+            still_max_force_change_mps2: 0.05,
+            still_max_rate_change: 0.005,
             zupt_interval_s: 0.1,
             zupt_velocity_sigma_mps: 0.01,
             max_imu_gap_s: 0.05,
             gate_probability: 0.9999,
             relative_pose_update: RelativePoseUpdate::Cloned,
             epoch_time_tolerance_s: 0.05,
+            epoch_max_delay_s: 0.2,
             imu_mount_rpy_deg: [0.0; 3],
             pose_history_s: 2.0,
             max_imu_rate_hz: 1000.0,
+            moving_start_sigma_velocity_mps: 1.0,
+            moving_start_sigma_tilt_deg: 3.0,
+            moving_start_sigma_gyro_bias: 0.3 * DEG,
+            converged_after_epochs: 3,
+            max_speed_mps: 20.0,
+            speed_prior_sigma_mps: 2.0,
+            speed_prior_interval_s: 1.0,
+            divergence_window: 10,
+            divergence_refused_in_row: 5,
+            max_position_step_m: 0.1,
+            max_coast_s: 1.0,
         }
     }
 }
@@ -148,6 +206,8 @@ pub enum ConfigError {
     StationaryShorterThanAlignment { stationary: f64, coarse: f64 },
     #[error("filter.imu_mount_rpy_deg = {0:?} is invalid: set three finite angles in degrees")]
     Mount([f64; 3]),
+    #[error("filter.epoch_max_delay_s = {delay} is longer than filter.pose_history_s = {history}: the delay is bridged from the pose history, so keep it within it")]
+    DelayBeyondHistory { delay: f64, history: f64 },
 }
 
 impl FilterConfig {
@@ -174,12 +234,44 @@ impl FilterConfig {
                 "stationary_max_force_error_mps2",
                 self.stationary_max_force_error_mps2,
             ),
+            (
+                "still_max_force_change_mps2",
+                self.still_max_force_change_mps2,
+            ),
+            ("still_max_rate_change", self.still_max_rate_change),
             ("zupt_interval_s", self.zupt_interval_s),
             ("zupt_velocity_sigma_mps", self.zupt_velocity_sigma_mps),
             ("max_imu_gap_s", self.max_imu_gap_s),
             ("epoch_time_tolerance_s", self.epoch_time_tolerance_s),
+            ("epoch_max_delay_s", self.epoch_max_delay_s),
             ("pose_history_s", self.pose_history_s),
             ("max_imu_rate_hz", self.max_imu_rate_hz),
+            (
+                "moving_start_sigma_velocity_mps",
+                self.moving_start_sigma_velocity_mps,
+            ),
+            (
+                "moving_start_sigma_tilt_deg",
+                self.moving_start_sigma_tilt_deg,
+            ),
+            (
+                "moving_start_sigma_gyro_bias",
+                self.moving_start_sigma_gyro_bias,
+            ),
+            (
+                "converged_after_epochs",
+                f64::from(self.converged_after_epochs),
+            ),
+            ("max_speed_mps", self.max_speed_mps),
+            ("speed_prior_sigma_mps", self.speed_prior_sigma_mps),
+            ("speed_prior_interval_s", self.speed_prior_interval_s),
+            ("divergence_window", f64::from(self.divergence_window)),
+            (
+                "divergence_refused_in_row",
+                f64::from(self.divergence_refused_in_row),
+            ),
+            ("max_position_step_m", self.max_position_step_m),
+            ("max_coast_s", self.max_coast_s),
         ];
         for (key, value) in positive {
             if !(value.is_finite() && value > 0.0) {
@@ -209,6 +301,12 @@ impl FilterConfig {
         }
         if !self.imu_mount_rpy_deg.iter().all(|a| a.is_finite()) {
             return Err(ConfigError::Mount(self.imu_mount_rpy_deg));
+        }
+        if self.epoch_max_delay_s > self.pose_history_s {
+            return Err(ConfigError::DelayBeyondHistory {
+                delay: self.epoch_max_delay_s,
+                history: self.pose_history_s,
+            });
         }
         Ok(())
     }

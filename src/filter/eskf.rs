@@ -5,9 +5,11 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
+use super::chi_square_quantile;
 use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
+use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
 use super::relative_pose::{CarriedNoise, RelativePose};
 use super::state::{
@@ -49,7 +51,8 @@ pub enum ImuOutcome {
     /// More than `max_imu_gap_s` since the previous sample: not integrated; the covariance
     /// was grown over the gap and the filter is degraded until the next fused epoch.
     Gap { seconds: f64 },
-    /// The sample would have put a non-finite value into the state: the filter reset.
+    /// The sample would have put a non-finite value into the state, or showed the filter
+    /// diverged: the filter reset or restarted.
     Reset(ResetReason),
 }
 
@@ -63,13 +66,19 @@ pub enum DropReason {
     BadInterval,
 }
 
-/// Why the filter reset its covariance (and dropped any clone).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Error)]
+/// Why `reset_counter` moved: the filter restarted, or its published pose jumped.
+#[derive(Debug, Clone, Copy, PartialEq, Error)]
 pub enum ResetReason {
     #[error("IMU propagation produced a non-finite state (absurd IMU sample)")]
     NonFinitePropagation,
     #[error("a measurement update produced a non-finite state")]
     NonFiniteUpdate,
+    #[error("filter diverged: {0}; navigation state restarted")]
+    Diverged(Divergence),
+    #[error("no IMU data for {seconds:.1} s: realigning, keeping position and heading")]
+    ImuGap { seconds: f64 },
+    #[error("a correction moved the position by {metres:.2} m at once")]
+    PositionStep { metres: f64 },
 }
 
 /// Why the estimate should not be trusted as a full IMU/odometry solution.
@@ -87,8 +96,9 @@ pub struct FilterCounters {
     pub imu_gaps: u64,
     pub rejected_updates: u64,
     pub resets: u64,
-    /// Samples that looked like motion during the stationary start (each restarts the
-    /// alignment, or ends the stationary start early).
+    /// Samples that looked like motion in the alignment window (it then starts in motion)
+    /// or during the stationary start, and relative poses that showed motion there (either
+    /// ends the stationary start early).
     pub motion_during_start: u64,
 }
 
@@ -98,6 +108,8 @@ pub enum UpdateKind {
     RelativePoseCloned,
     RelativePoseVelocity,
     ZeroMotion,
+    /// The platform's speed prior on a velocity the odometry leaves unobserved.
+    SpeedPrior,
 }
 
 /// Outcome of one measurement update.
@@ -122,7 +134,7 @@ pub enum UpdateError {
     NotAligned,
     #[error("relative pose has NaN or infinite values: the odometer must not report it")]
     NonFinite,
-    #[error("relative pose epoch t = {t} s is not the filter time {filter_t} s: feed the IMU up to the epoch first")]
+    #[error("relative pose epoch t = {t} s is too far from the filter time {filter_t} s: feed the IMU up to the epoch (at most filter.epoch_time_tolerance_s short of it) and fuse it within filter.epoch_max_delay_s")]
     TimeMismatch { t: f64, filter_t: f64 },
     #[error("no cloned pose at t_ref = {t_ref} s: call clone_pose() at every odometry epoch")]
     NoClone { t_ref: f64 },
@@ -148,8 +160,7 @@ pub struct PosePrior {
 #[derive(Debug, Clone, Copy)]
 struct ZeroMotionWindow {
     start: f64,
-    rate_sum: Vector3<f64>,
-    weight: f64,
+    means: StationaryMeans,
 }
 
 /// Error-state Kalman filter over the 21 error states of `state.rs`, plus the 6 states of a
@@ -161,6 +172,7 @@ pub struct Eskf {
     gravity: Vector3<f64>,
     noise: ProcessNoise,
     gate: GateThresholds,
+    ungated: GateThresholds,
     phase: FilterPhase,
     state: NominalState,
     covariance: Covariance,
@@ -180,6 +192,61 @@ pub struct Eskf {
     last_reset: Option<ResetReason>,
     degraded: Option<Degradation>,
     last_fused: Option<f64>,
+    guard: DivergenceGuard,
+    /// Set once the estimate has converged after the last (re)start
+    /// (`FilterConfig::converged_after_epochs`).
+    converged: bool,
+    /// Relative poses fused since the last (re)start.
+    fused_since_start: u32,
+    /// When the speed prior was last considered.
+    last_speed_prior: Option<f64>,
+    /// Every sample and every `zupt_interval_s` part of the current alignment window looked
+    /// still.
+    window_still: bool,
+    /// The first `zupt_interval_s` part of the alignment window, which the others must match.
+    first_part: Option<StationaryMeans>,
+    /// Position and heading kept through a realignment after a long IMU gap.
+    resume: Option<Resume>,
+}
+
+/// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
+/// so that the autopilot's frame does not move.
+#[derive(Debug, Clone, Copy)]
+struct Resume {
+    position: Vector3<f64>,
+    yaw: f64,
+    position_covariance: Matrix3<f64>,
+    yaw_variance: f64,
+}
+
+impl Resume {
+    fn of(state: &NominalState, covariance: &Covariance) -> Self {
+        let attitude = covariance.fixed_view::<3, 3>(ATT, ATT);
+        Self {
+            position: state.p,
+            yaw: state.q.euler_angles().2,
+            position_covariance: covariance.fixed_view::<3, 3>(POS, POS).into(),
+            yaw_variance: attitude[(2, 2)],
+        }
+    }
+
+    /// Puts the kept position and heading into a freshly started state and covariance; the
+    /// kept covariance grows by `extra_position_variance` (motion the filter did not see).
+    fn apply(
+        &self,
+        state: &mut NominalState,
+        covariance: &mut Covariance,
+        extra_position_variance: f64,
+    ) {
+        let (roll, pitch, _) = state.q.euler_angles();
+        state.p = self.position;
+        state.q = UnitQuaternion::from_euler_angles(roll, pitch, self.yaw);
+        let position = self.position_covariance + Matrix3::identity() * extra_position_variance;
+        covariance
+            .fixed_view_mut::<3, 3>(POS, POS)
+            .copy_from(&position);
+        covariance[(ATT + 2, ATT + 2)] = covariance[(ATT + 2, ATT + 2)].max(self.yaw_variance);
+    }
 }
 
 impl Eskf {
@@ -187,12 +254,13 @@ impl Eskf {
     pub fn new(config: FilterConfig) -> Result<Self, ConfigError> {
         config.validate()?;
         let state = NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros());
-        let covariance = initial_covariance(&config, &state.q);
+        let covariance = initial_covariance(&config, &state.q, StartSigmas::still(&config));
         Ok(Self {
             imu_to_body: config.imu_to_body(),
             gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
             noise: ProcessNoise::new(&config),
             gate: GateThresholds::new(config.gate_probability),
+            ungated: GateThresholds::new(1.0),
             phase: FilterPhase::Aligning,
             state,
             covariance,
@@ -211,6 +279,13 @@ impl Eskf {
             last_reset: None,
             degraded: None,
             last_fused: None,
+            guard: DivergenceGuard::new(&config),
+            converged: false,
+            fused_since_start: 0,
+            last_speed_prior: None,
+            window_still: true,
+            first_part: None,
+            resume: None,
             config,
         })
     }
@@ -223,9 +298,11 @@ impl Eskf {
         state: NominalState,
     ) -> Result<Self, ConfigError> {
         let mut filter = Self::new(config)?;
-        filter.covariance = initial_covariance(&filter.config, &state.q);
+        filter.covariance =
+            initial_covariance(&filter.config, &state.q, StartSigmas::still(&filter.config));
         filter.state = state;
         filter.phase = FilterPhase::Navigating;
+        filter.converged = true;
         filter.t = Some(t);
         filter.t_start = Some(t);
         filter.record_pose(t);
@@ -279,6 +356,7 @@ impl Eskf {
                 if let Some(reason) = self.propagate(&increment) {
                     return ImuOutcome::Reset(reason);
                 }
+                self.bound_velocity(t);
                 if self.phase == FilterPhase::StationaryStart {
                     self.stationary_updates(t, sample, interval);
                 }
@@ -287,22 +365,40 @@ impl Eskf {
         }
     }
 
+    /// Averages the alignment window, still or not: a still window is the fast path (the mean
+    /// rate is the gyro bias, and zero-motion updates follow); a moving one starts in motion,
+    /// with the wide priors the odometry then narrows.
     fn align(&mut self, t: f64, sample: &ImuSample, interval: f64) -> ImuOutcome {
         if !self.looks_stationary(sample) {
             self.counters.motion_during_start += 1;
-            self.means = StationaryMeans::default();
-            self.t_start = Some(t);
-            return ImuOutcome::Aligning;
+            self.window_still = false;
         }
         let start = *self.t_start.get_or_insert(t);
         self.means.add(sample, interval);
+        if let Some(part) = self.completed_window(t, sample, interval) {
+            match &self.first_part {
+                None => self.first_part = Some(part),
+                Some(first) => self.window_still &= !self.departs(&part, first),
+            }
+        }
         if t - start < self.config.coarse_alignment_s {
             return ImuOutcome::Aligning;
         }
-        self.state = self.means.aligned_state(&self.imu_to_body);
-        self.covariance = initial_covariance(&self.config, &self.state.q);
+        self.first_part = None;
+        let still = self.window_still;
+        self.state = self.means.aligned_state(&self.imu_to_body, still);
+        let sigmas = if still {
+            StartSigmas::still(&self.config)
+        } else {
+            StartSigmas::moving(&self.config)
+        };
+        self.covariance = initial_covariance(&self.config, &self.state.q, sigmas);
+        if let Some(resume) = self.resume.take() {
+            let unseen = self.config.moving_start_sigma_velocity_mps * (t - start);
+            resume.apply(&mut self.state, &mut self.covariance, unseen * unseen);
+        }
         self.zero_motion = None;
-        self.phase = if t - start < self.config.stationary_start_s {
+        self.phase = if still && t - start < self.config.stationary_start_s {
             FilterPhase::StationaryStart
         } else {
             FilterPhase::Navigating
@@ -337,7 +433,10 @@ impl Eskf {
         self.dynamics = Some(dynamics);
         self.angular_rate = corrected.dtheta / corrected.dt;
         self.record_pose(increment.t);
-        None
+        let divergence = self.guard.check_speed(self.state.v.norm())?;
+        let reason = ResetReason::Diverged(divergence);
+        self.reinitialise(reason);
+        Some(reason)
     }
 
     /// Over a gap the IMU is unknown: the state coasts at constant velocity and the covariance
@@ -346,8 +445,13 @@ impl Eskf {
         self.counters.imu_gaps += 1;
         self.degraded = Some(Degradation::ImuGap { seconds });
         if self.phase == FilterPhase::Aligning {
-            self.means = StationaryMeans::default();
-            self.t_start = Some(t);
+            self.restart_alignment(t);
+            return ImuOutcome::Gap { seconds };
+        }
+        if seconds > self.config.max_coast_s {
+            self.resume = Some(Resume::of(&self.state, &self.covariance));
+            self.restart_alignment(t);
+            self.count_reset(ResetReason::ImuGap { seconds });
             return ImuOutcome::Gap { seconds };
         }
         // Bounded work for any gap: past MAX_GAP_STEPS the steps get longer.
@@ -402,32 +506,23 @@ impl Eskf {
     }
 
     /// Zero-motion updates once per window; motion ends the stationary start early rather than
-    /// letting a false zero velocity into the state.
+    /// letting a false zero velocity into the state. A window whose mean specific force or
+    /// rate departs from the alignment's is motion, however gentle (a hover, the first
+    /// instants of a take-off), which a per-sample test cannot see.
     fn stationary_updates(&mut self, t: f64, sample: &ImuSample, interval: f64) {
         if !self.looks_stationary(sample) {
-            self.counters.motion_during_start += 1;
-            self.zero_motion = None;
-            self.phase = FilterPhase::Navigating;
+            self.end_stationary_start();
             return;
         }
-        let window = self.zero_motion.get_or_insert(ZeroMotionWindow {
-            start: t - interval,
-            rate_sum: Vector3::zeros(),
-            weight: 0.0,
-        });
-        let rate = match *sample {
-            ImuSample::Rate { gyro, .. } => gyro,
-            ImuSample::Delta { dt, dq, .. } => dq.scaled_axis() / dt,
-        };
-        window.rate_sum += rate * interval;
-        window.weight += interval;
-        let window = *window;
-        if t - window.start >= self.config.zupt_interval_s {
-            self.zero_motion = None;
+        if let Some(window) = self.completed_window(t, sample, interval) {
+            if self.departs(&window, &self.means) {
+                self.end_stationary_start();
+                return;
+            }
             let rows = zero_motion_rows(
                 &self.state,
-                &(window.rate_sum / window.weight),
-                window.weight,
+                &window.mean_rate(),
+                window.weight(),
                 self.config.zupt_velocity_sigma_mps,
                 self.config.gyro_noise_density,
             );
@@ -438,6 +533,74 @@ impl Eskf {
         if t - start >= self.config.stationary_start_s {
             self.phase = FilterPhase::Navigating;
         }
+    }
+
+    /// Along a velocity direction no surface has observed for long (a bare corridor, a start
+    /// in motion with nothing ahead), the IMU integrates its tilt and bias errors without
+    /// bound: honest, but the estimate runs off to speeds no indoor platform flies, and with it
+    /// deskewing and the linearisation. Once per `speed_prior_interval_s`, a velocity sigma
+    /// beyond half of `speed_prior_sigma_mps` takes the platform's speed prior (zero with that
+    /// sigma on each axis), which bounds it at about that sigma, and nothing else.
+    fn bound_velocity(&mut self, t: f64) {
+        let due = self
+            .last_speed_prior
+            .is_none_or(|last| t - last >= self.config.speed_prior_interval_s);
+        if !due {
+            return;
+        }
+        self.last_speed_prior = Some(t);
+        let sigma = self.config.speed_prior_sigma_mps;
+        let largest = self
+            .covariance
+            .fixed_view::<3, 3>(VEL, VEL)
+            .into_owned()
+            .symmetric_eigenvalues()
+            .max();
+        if largest <= (0.5 * sigma).powi(2) {
+            return;
+        }
+        let mut rows = Stacked::default();
+        let mut h = super::update::Jacobian3::zeros();
+        h.fixed_view_mut::<3, 3>(0, VEL)
+            .copy_from(&Matrix3::identity());
+        rows.push(
+            &-self.state.v,
+            &h,
+            &(Matrix3::identity() * sigma * sigma),
+            &super::update::Observability::full(),
+        );
+        let _ = self.fuse(&rows, UpdateKind::SpeedPrior, t);
+    }
+
+    fn end_stationary_start(&mut self) {
+        self.counters.motion_during_start += 1;
+        self.zero_motion = None;
+        self.phase = FilterPhase::Navigating;
+    }
+
+    /// Adds the sample to the current `zupt_interval_s` window and returns the window's means
+    /// when it is complete.
+    fn completed_window(
+        &mut self,
+        t: f64,
+        sample: &ImuSample,
+        interval: f64,
+    ) -> Option<StationaryMeans> {
+        let window = self.zero_motion.get_or_insert(ZeroMotionWindow {
+            start: t - interval,
+            means: StationaryMeans::default(),
+        });
+        window.means.add(sample, interval);
+        let complete = t - window.start >= self.config.zupt_interval_s;
+        complete.then(|| self.zero_motion.take().map(|w| w.means))?
+    }
+
+    fn departs(&self, window: &StationaryMeans, reference: &StationaryMeans) -> bool {
+        window.departs_from(
+            reference,
+            self.config.still_max_force_change_mps2,
+            self.config.still_max_rate_change,
+        )
     }
 
     /// Clones the current pose as the reference of the next odometry epoch (replacing any
@@ -483,12 +646,14 @@ impl Eskf {
         if !measurement.is_finite() {
             return Err(UpdateError::NonFinite);
         }
-        let tolerance = self.config.epoch_time_tolerance_s;
-        if (measurement.t - now).abs() > tolerance {
+        if !self.bridgeable(measurement.t, now) {
             return Err(UpdateError::TimeMismatch {
                 t: measurement.t,
                 filter_t: now,
             });
+        }
+        if self.phase == FilterPhase::StationaryStart && self.shows_motion(measurement) {
+            self.leave_stationary_start(measurement);
         }
         let current = Pose {
             t: now,
@@ -507,7 +672,7 @@ impl Eskf {
                 let clone = self
                     .clone
                     .take()
-                    .filter(|c| (c.t - measurement.t_ref).abs() <= tolerance)
+                    .filter(|c| self.bridgeable(measurement.t_ref, c.t))
                     .ok_or(UpdateError::NoClone {
                         t_ref: measurement.t_ref,
                     })?;
@@ -518,7 +683,7 @@ impl Eskf {
                 let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
                 let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
                 (
-                    bridged.cloned_rows(&clone, &self.state, carried.as_ref()),
+                    bridged.cloned_rows(&clone, &self.state, carried.as_ref(), &self.covariance),
                     UpdateKind::RelativePoseCloned,
                 )
             }
@@ -539,8 +704,75 @@ impl Eskf {
         if report.accepted && report.dof > 0 {
             self.last_fused = Some(now);
             self.degraded = None;
+            self.fused_since_start += 1;
+            self.converged |= self.fused_since_start >= self.config.converged_after_epochs;
+        }
+        if let Some(divergence) = self
+            .guard
+            .after_update(report.nis, report.dof, report.accepted)
+        {
+            self.reinitialise(ResetReason::Diverged(divergence));
         }
         Ok(report)
+    }
+
+    /// Whether a relative pose contradicts the stationary start: a rotation or displacement
+    /// beyond what a body at rest shows (gyro noise, `zupt_velocity_sigma_mps` of sway) with
+    /// the odometer's own noise, at 1 - 1e-6.
+    fn shows_motion(&self, measurement: &RelativePose) -> bool {
+        let interval = (measurement.t - measurement.t_ref).abs();
+        let threshold = chi_square_quantile(1.0 - 1e-6, 3);
+        let beyond = |value: &Vector3<f64>, covariance: &Matrix3<f64>, rest_variance: f64| {
+            let total = covariance + Matrix3::identity() * rest_variance;
+            total
+                .cholesky()
+                .is_some_and(|c| value.dot(&c.solve(value)) > threshold)
+        };
+        let turned = measurement.rotation.is_some_and(|r| {
+            let rest = self.config.gyro_noise_density.powi(2) * interval;
+            beyond(&r.rotation_vector, &r.covariance, rest)
+        });
+        let moved = measurement.translation.is_some_and(|d| {
+            let rest = (self.config.zupt_velocity_sigma_mps * interval).powi(2);
+            beyond(&d.displacement, &d.covariance, rest)
+        });
+        turned || moved
+    }
+
+    /// The odometry saw motion while the zero-motion updates held the filter still: those
+    /// updates were false for as long as the platform has moved, so the velocity, tilt and
+    /// accelerometer bias get back the uncertainty of a start in motion (added, which keeps
+    /// every correlation with the open clone valid) and the estimate converges again.
+    fn leave_stationary_start(&mut self, measurement: &RelativePose) {
+        self.end_stationary_start();
+        self.converged = false;
+        self.fused_since_start = 0;
+        // The zero-motion updates were wrong by at most the velocity the odometry saw (twice
+        // its mean, for margin), and that error came from a tilt and an accelerometer bias
+        // that turned it into velocity over the epoch.
+        let interval = (measurement.t - measurement.t_ref).abs().max(1e-3);
+        let seen = measurement
+            .translation
+            .map_or(0.0, |d| d.displacement.norm() / interval);
+        let velocity = (2.0 * seen + self.config.zupt_velocity_sigma_mps)
+            .min(self.config.moving_start_sigma_velocity_mps);
+        let tilt = (velocity / (self.config.gravity_mps2 * interval))
+            .min(self.config.moving_start_sigma_tilt_deg.to_radians());
+        let added = [
+            (VEL, velocity),
+            (
+                ACCEL_BIAS,
+                (velocity / interval).min(self.config.initial_sigma_accel_bias),
+            ),
+        ];
+        for (at, sigma) in added {
+            for k in 0..3 {
+                self.covariance[(at + k, at + k)] += sigma * sigma;
+            }
+        }
+        for k in 0..2 {
+            self.covariance[(ATT + k, ATT + k)] += tilt * tilt;
+        }
     }
 
     fn fuse(
@@ -553,8 +785,13 @@ impl Eskf {
             return Err(UpdateError::NonFinite);
         }
         let mut covariance = self.covariance;
-        let gated = update::apply(&mut covariance, rows, &self.gate)
-            .map_err(|_| UpdateError::BadCovariance)?;
+        // A prior is what is known whatever the state says: it is never gated.
+        let gate = match kind {
+            UpdateKind::SpeedPrior => &self.ungated,
+            _ => &self.gate,
+        };
+        let gated =
+            update::apply(&mut covariance, rows, gate).map_err(|_| UpdateError::BadCovariance)?;
         let report = UpdateReport {
             kind,
             t,
@@ -578,6 +815,10 @@ impl Eskf {
                 accepted: false,
                 ..report
             });
+        }
+        let step = (next.p - self.state.p).norm();
+        if step > self.config.max_position_step_m {
+            self.count_reset(ResetReason::PositionStep { metres: step });
         }
         // The stored poses were propagated from the state before the correction: move them
         // with it, so motion read from the history (deskew, priors, epoch bridges) is the
@@ -622,9 +863,55 @@ impl Eskf {
     /// Keeps the last finite state, restarts the covariance from the initial sigmas and drops
     /// the clone; the estimate jumps, so `reset_counter` moves.
     fn reset(&mut self, reason: ResetReason) {
-        self.covariance = initial_covariance(&self.config, &self.state.q);
+        self.covariance = initial_covariance(
+            &self.config,
+            &self.state.q,
+            StartSigmas::still(&self.config),
+        );
         self.clone = None;
         self.carried = None;
+        self.count_reset(reason);
+    }
+
+    /// Restarts the navigation state where it stands: position and heading stay, so that the
+    /// autopilot's frame does not move; the velocity restarts at zero, the biases at their
+    /// priors and the covariance from the start-in-motion sigmas, so that the odometry
+    /// measures them again. Until the estimate converges again it is not to be trusted.
+    fn reinitialise(&mut self, reason: ResetReason) {
+        let resume = Resume::of(&self.state, &self.covariance);
+        self.state = NominalState::at_rest(self.state.q, Vector3::zeros());
+        self.covariance = initial_covariance(
+            &self.config,
+            &self.state.q,
+            StartSigmas::moving(&self.config),
+        );
+        resume.apply(&mut self.state, &mut self.covariance, 0.0);
+        self.phase = FilterPhase::Navigating;
+        self.forget_epochs();
+        self.count_reset(reason);
+    }
+
+    /// Starts a new alignment window at `t` (after an IMU gap).
+    fn restart_alignment(&mut self, t: f64) {
+        self.phase = FilterPhase::Aligning;
+        self.means = StationaryMeans::default();
+        self.window_still = true;
+        self.t_start = Some(t);
+        self.forget_epochs();
+    }
+
+    /// Drops what ties the filter to earlier epochs: the clone, the carried noise, the
+    /// zero-motion window, the divergence guard's history and the convergence.
+    fn forget_epochs(&mut self) {
+        self.clone = None;
+        self.carried = None;
+        self.zero_motion = None;
+        self.guard.clear();
+        self.converged = false;
+        self.fused_since_start = 0;
+    }
+
+    fn count_reset(&mut self, reason: ResetReason) {
         self.reset_counter = self.reset_counter.wrapping_add(1);
         self.counters.resets += 1;
         self.last_reset = Some(reason);
@@ -665,6 +952,15 @@ impl Eskf {
         })
     }
 
+    /// Whether an epoch time `t` can be bridged to the filter's pose at `at` (the clone's or
+    /// the current time): from the history up to `epoch_max_delay_s` before it (a pair closes
+    /// the rest of a revolution after its reference time), by extrapolation up to
+    /// `epoch_time_tolerance_s` after it (the IMU's bytes read after the scans').
+    fn bridgeable(&self, t: f64, at: f64) -> bool {
+        let behind = at - t;
+        behind <= self.config.epoch_max_delay_s && -behind <= self.config.epoch_time_tolerance_s
+    }
+
     /// `pose_at_or_after`, at most `epoch_time_tolerance_s` ahead: a scan pair can be complete
     /// before the IMU sample that covers its reference time has been read.
     fn pose_or_ahead(&self, t: f64) -> Option<Pose> {
@@ -682,10 +978,8 @@ impl Eskf {
         let reference = self.history.pose_at(t_ref)?;
         let current = self.pose_or_ahead(t)?;
         let (rotation, translation) = RelativePose::predict(&reference, &current);
-        let tolerance = self.config.epoch_time_tolerance_s;
         let exact = self.clone.filter(|c| {
-            (c.t - t_ref).abs() <= tolerance
-                && self.t.is_some_and(|now| (now - t).abs() <= tolerance)
+            self.bridgeable(t_ref, c.t) && self.t.is_some_and(|now| self.bridgeable(t, now))
         });
         let (rotation_covariance, translation_covariance) = match exact {
             Some(clone) => self.clone_relative_covariance(&clone, t),
@@ -716,7 +1010,7 @@ impl Eskf {
             }),
             shared: None,
         };
-        let rows = probe.cloned_rows(clone, &self.state, None);
+        let rows = probe.cloned_rows(clone, &self.state, None, &self.covariance);
         let s = rows.innovation_covariance(&self.covariance);
         // The probe's noise is zero, so the covariance is H P H^T.
         (
@@ -766,6 +1060,7 @@ impl Eskf {
             angular_rate: self.angular_rate,
             position_covariance: block(POS),
             velocity_covariance: block(VEL),
+            velocity_attitude_covariance: self.covariance.fixed_view::<3, 3>(VEL, ATT).into(),
             attitude_covariance: block(ATT),
             gyro_bias: self.imu_to_body * self.state.gyro_bias,
             accel_bias: self.imu_to_body * self.state.accel_bias,
@@ -773,6 +1068,7 @@ impl Eskf {
             integrity: None,
             since_last_fused: self.last_fused.map_or(f64::INFINITY, |last| t - last),
             degraded: self.degraded.is_some() || self.phase == FilterPhase::Aligning,
+            converged: self.converged,
         }
     }
 
@@ -838,14 +1134,44 @@ fn sample_is_finite(sample: &ImuSample) -> bool {
     }
 }
 
-fn initial_covariance(config: &FilterConfig, attitude: &UnitQuaternion<f64>) -> Covariance {
+/// The priors that differ between a still start and a start in motion.
+#[derive(Debug, Clone, Copy)]
+struct StartSigmas {
+    velocity_mps: f64,
+    tilt_deg: f64,
+    gyro_bias: f64,
+}
+
+impl StartSigmas {
+    fn still(config: &FilterConfig) -> Self {
+        Self {
+            velocity_mps: config.initial_sigma_velocity_mps,
+            tilt_deg: config.initial_sigma_tilt_deg,
+            gyro_bias: config.initial_sigma_gyro_bias,
+        }
+    }
+
+    fn moving(config: &FilterConfig) -> Self {
+        Self {
+            velocity_mps: config.moving_start_sigma_velocity_mps,
+            tilt_deg: config.moving_start_sigma_tilt_deg,
+            gyro_bias: config.moving_start_sigma_gyro_bias,
+        }
+    }
+}
+
+fn initial_covariance(
+    config: &FilterConfig,
+    attitude: &UnitQuaternion<f64>,
+    start: StartSigmas,
+) -> Covariance {
     let deg = std::f64::consts::PI / 180.0;
-    let tilt = config.initial_sigma_tilt_deg * deg;
+    let tilt = start.tilt_deg * deg;
     let euler_sigmas = Vector3::new(tilt, tilt, config.initial_sigma_yaw_deg * deg);
     let sigmas = [
         (POS, Vector3::repeat(config.initial_sigma_position_m)),
-        (VEL, Vector3::repeat(config.initial_sigma_velocity_mps)),
-        (GYRO_BIAS, Vector3::repeat(config.initial_sigma_gyro_bias)),
+        (VEL, Vector3::repeat(start.velocity_mps)),
+        (GYRO_BIAS, Vector3::repeat(start.gyro_bias)),
         (ACCEL_BIAS, Vector3::repeat(config.initial_sigma_accel_bias)),
         (GYRO_SCALE, Vector3::repeat(config.initial_sigma_gyro_scale)),
         (

@@ -79,8 +79,13 @@ fn noise_free_filter_tracks_a_spinning_drift_with_both_imu_outputs() {
         rate: Vector3::new(0.3, -0.2, 0.5),
         velocity: Vector3::new(1.0, -0.5, 0.2),
     };
+    // Pure dead reckoning: no speed prior pulling the 1.1 m/s towards rest.
+    let config = FilterConfig {
+        speed_prior_sigma_mps: 1e3,
+        ..FilterConfig::default()
+    };
     for delta in [false, true] {
-        let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+        let mut filter = start_at_truth(config.clone(), &trajectory, 0.0);
         feed(
             &mut filter,
             &trajectory.imu_samples(0.0, 10.0, 400.0, delta),
@@ -593,28 +598,89 @@ fn epochs_between_imu_samples_are_bridged_with_the_propagated_motion() {
 }
 
 #[test]
-fn motion_during_the_start_restarts_alignment_and_then_ends_the_stationary_start() {
+fn epochs_a_slow_scanners_revolution_behind_the_imu_are_bridged_from_the_history() {
+    // A 10 Hz scanner's pair closes once its scan has been sent: the IMU is then 62 ms past the
+    // pair's mid-scan reference time, at the clone and again at the update.
+    let trajectory = Circle::default();
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(&mut filter, &trajectory.imu_samples(0.0, 1.07, 100.0, true));
+    filter.clone_pose().unwrap();
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(1.07, 2.07, 100.0, true),
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let behind = measured_relative_pose(&trajectory, 1.0076, 2.0076, 1e-5, 1e-4, &mut rng);
+    let report = filter.update_relative_pose(&behind).unwrap();
+    assert!(report.accepted, "NIS {}", report.nis);
+    assert!(report.nis < chi_square_quantile(0.999, 6));
+    assert!((filter.estimate().position - trajectory.truth(2.07).p).norm() < 1e-3);
+    // As far ahead of the IMU is extrapolation, and that stays within epoch_time_tolerance_s.
+    filter.clone_pose().unwrap();
+    feed(&mut filter, &trajectory.imu_samples(2.07, 3.0, 100.0, true));
+    let ahead = measured_relative_pose(&trajectory, 2.07, 3.0624, 1e-5, 1e-4, &mut rng);
+    assert!(matches!(
+        filter.update_relative_pose(&ahead),
+        Err(UpdateError::TimeMismatch { .. })
+    ));
+}
+
+/// Samples of a body at rest with a turn of 0.5 rad/s in sample `bumped`.
+fn still_with_a_bump(bumped: usize) -> Vec<ImuSample> {
     let trajectory = Stationary {
         q: UnitQuaternion::from_euler_angles(0.1, 0.0, 0.0),
     };
+    let mut samples = trajectory.imu_samples(0.0, 4.0, 100.0, false);
+    if let ImuSample::Rate { gyro, .. } = &mut samples[bumped] {
+        *gyro += Vector3::new(0.0, 0.0, 0.5);
+    }
+    samples
+}
+
+#[test]
+fn motion_in_the_alignment_window_starts_in_motion_without_waiting_for_stillness() {
     let config = FilterConfig {
         stationary_start_s: 5.0,
         ..FilterConfig::default()
     };
-    let mut samples = trajectory.imu_samples(0.0, 4.0, 100.0, false);
-    let bump = |sample: &mut ImuSample| {
-        if let ImuSample::Rate { gyro, .. } = sample {
-            *gyro += Vector3::new(0.0, 0.0, 0.5);
-        }
-    };
-    bump(&mut samples[50]);
-    bump(&mut samples[300]);
-    let mut filter = Eskf::new(config).unwrap();
-    let outcomes: Vec<_> = samples.iter().map(|s| filter.push_imu(s)).collect();
-    // Aligned one second after the bump at 0.5 s, not one second after the start.
+    let mut filter = Eskf::new(config.clone()).unwrap();
+    let outcomes: Vec<_> = still_with_a_bump(50)
+        .iter()
+        .map(|s| filter.push_imu(s))
+        .collect();
     let aligned_at = outcomes.iter().position(|o| *o == ImuOutcome::Aligned);
-    assert_eq!(aligned_at, Some(150));
-    assert_eq!(filter.counters().motion_during_start, 2);
+    assert_eq!(
+        aligned_at,
+        Some(100),
+        "one second after the start, moving or not"
+    );
+    assert_eq!(
+        filter.phase(),
+        FilterPhase::Navigating,
+        "no zero-velocity updates"
+    );
+    assert!(!filter.estimate().converged);
+    let sigmas = filter.sigmas();
+    let velocity_sigma = sigmas[state::VEL].max(sigmas[state::VEL + 1]);
+    assert!(velocity_sigma >= config.moving_start_sigma_velocity_mps);
+}
+
+#[test]
+fn motion_after_a_still_alignment_ends_the_stationary_start() {
+    let config = FilterConfig {
+        stationary_start_s: 5.0,
+        ..FilterConfig::default()
+    };
+    let mut filter = Eskf::new(config).unwrap();
+    let samples = still_with_a_bump(300);
+    for sample in &samples[..250] {
+        filter.push_imu(sample);
+    }
+    assert_eq!(filter.phase(), FilterPhase::StationaryStart);
+    for sample in &samples[250..] {
+        filter.push_imu(sample);
+    }
+    assert_eq!(filter.counters().motion_during_start, 1);
     assert_eq!(filter.phase(), FilterPhase::Navigating);
 }
 

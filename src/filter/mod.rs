@@ -17,6 +17,7 @@ pub mod alignment;
 pub mod config;
 pub mod consistency;
 pub mod covariance;
+pub mod divergence;
 pub mod eskf;
 pub mod history;
 pub mod relative_pose;

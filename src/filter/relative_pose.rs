@@ -19,6 +19,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::history::Pose;
+use super::state::Covariance;
 use super::state::{
     NominalState, ATT, CARRIED, CLONE_ATT, CLONE_POS, GYRO_BIAS, GYRO_SCALE, POS, VEL,
 };
@@ -139,11 +140,15 @@ impl RelativePose {
     /// `L = C U^+` the regression of this pose's epoch-i noise on the carried `n_i` (covariance
     /// `U`, cross-covariance `C`), `n_j` the noise the current planes put in (carried out to the
     /// next pose by the update) and `r` the rest, of covariance `R - L C^T`.
+    ///
+    /// `covariance` (the filter's, with the clone open) adds the displacement's second-order
+    /// term (`second_order_noise`).
     pub fn cloned_rows(
         &self,
         reference: &Pose,
         current: &NominalState,
         carried: Option<&CarriedNoise>,
+        covariance: &Covariance,
     ) -> Stacked {
         let now = Pose {
             t: self.t,
@@ -178,7 +183,8 @@ impl RelativePose {
             );
             set(&mut h, CARRIED + 3, &shared.l);
             let residual = translation.displacement - d_hat - shared.carried_mean;
-            rows.push(&residual, &h, &shared.noise, &translation.observability);
+            let noise = shared.noise + second_order_noise(&r_i_t, covariance);
+            rows.push(&residual, &h, &noise, &translation.observability);
             rows.carry_out(1, &shared.current, &translation.observability);
         }
         rows
@@ -228,6 +234,32 @@ impl RelativePose {
         }
         rows
     }
+}
+
+/// Covariance of the displacement's second-order term, which the linearisation drops. With
+/// the clone's attitude error `dtheta_i` and the error `e` of the estimated motion
+/// `p_j - p_i`, the displacement is `R_i^T (p_j - p_i + e + [p_j - p_i]x dtheta_i + [e]x
+/// dtheta_i)`: the Jacobian takes the lever of the attitude error at the estimated motion, and
+/// the last term is what that lever is wrong by. It is negligible where the planes observe
+/// the motion, but along a direction they leave free (a bare corridor, a start in motion) `e`
+/// is as large as the velocity is uncertain, and then a milliradian of tilt error times a
+/// metre of unknown motion along the corridor shows as a millimetre across it. Fused without
+/// this term, a row across the corridor (the floor's normal, a wall's) reads that millimetre
+/// as information along the corridor that no surface gave, and the filter reports a velocity
+/// sigma far below its error. `E[[e]x P [e]x^T] = sum_k lambda_k [v_k]x P [v_k]x^T` over the
+/// eigenpairs of `e`'s covariance, taken independent of the attitude error.
+fn second_order_noise(r_i_t: &Matrix3<f64>, covariance: &Covariance) -> Matrix3<f64> {
+    let block = |a: usize, b: usize| -> Matrix3<f64> { covariance.fixed_view::<3, 3>(a, b).into() };
+    let motion = block(POS, POS) + block(CLONE_POS, CLONE_POS)
+        - block(POS, CLONE_POS)
+        - block(CLONE_POS, POS);
+    let attitude = block(CLONE_ATT, CLONE_ATT);
+    let eigen = ((motion + motion.transpose()) * 0.5).symmetric_eigen();
+    let nav = (0..3).fold(Matrix3::zeros(), |sum, k| {
+        let lever = Vector3::from(eigen.eigenvectors.column(k)).cross_matrix();
+        sum + lever * attitude * lever.transpose() * eigen.eigenvalues[k].max(0.0)
+    });
+    r_i_t * nav * r_i_t.transpose()
 }
 
 /// One block's share of the noise: the carried noise's Jacobian `L` and its estimate's share
