@@ -9,6 +9,17 @@ use std::fmt;
 /// Planes within about 0.5 deg of parallel leave their common normal's complement this weak.
 pub const OBSERVABILITY_TOLERANCE: f64 = 1e-6;
 
+/// Relative eigenvalue of the normals' own geometry below which a direction counts as
+/// unobserved by the planes, whatever their weights: normals within about 1.8 deg of parallel
+/// (`sum n n^T` for a displacement, `sum (I - n n^T)` for a rotation). Two walls of a corridor
+/// measured a few milliradians off parallel would otherwise "observe" the direction between
+/// their normals' errors (for the displacement, the motion along the corridor; for the
+/// rotation, the turn about their common normal); along it the rows hold little but those
+/// errors times the motion, which fused told the filter the corridor's velocity far more
+/// precisely than any surface had measured it. The weights do not enter: a direction is seen
+/// by surfaces that face it, however well or badly they were measured.
+pub const PARALLEL_TOLERANCE: f64 = 1e-3;
+
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinearSystem {
     /// Geometry matrix, rows x 3.
@@ -71,13 +82,22 @@ impl LinearSystem {
 
     /// Weighted least squares, refusing rather than inverting an ill-conditioned geometry.
     pub fn solve(self) -> Result<Solution, SolveError> {
+        self.solve_within(OBSERVABILITY_TOLERANCE)
+    }
+
+    /// As `solve`, refusing directions whose information is at most `tolerance` of the
+    /// strongest direction's.
+    pub fn solve_within(self, tolerance: f64) -> Result<Solution, SolveError> {
         let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
         let r_inv_h = r_chol.solve(&self.h);
         let r_inv_y = r_chol.solve(&self.y);
         let information: Matrix3<f64> = (self.h.transpose() * &r_inv_h)
             .fixed_view::<3, 3>(0, 0)
             .into();
-        check_observability(&information)?;
+        let unobservable = directions_below(&information, tolerance);
+        if !unobservable.is_empty() {
+            return Err(SolveError::UnderDetermined { unobservable });
+        }
         let covariance = information
             .try_inverse()
             .ok_or_else(|| SolveError::UnderDetermined {
@@ -97,23 +117,19 @@ impl LinearSystem {
     }
 }
 
-fn check_observability(information: &Matrix3<f64>) -> Result<(), SolveError> {
-    let unobservable = weakest_directions(information);
-    if unobservable.is_empty() {
-        Ok(())
-    } else {
-        Err(SolveError::UnderDetermined { unobservable })
-    }
-}
-
 /// Eigenvectors of the information matrix whose eigenvalue is negligible against the largest.
 pub fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
-    let eigen = SymmetricEigen::new(*information);
+    directions_below(information, OBSERVABILITY_TOLERANCE)
+}
+
+/// Eigenvectors of a symmetric matrix whose eigenvalue is at most `tolerance` of the largest.
+pub fn directions_below(matrix: &Matrix3<f64>, tolerance: f64) -> Vec<Vector3<f64>> {
+    let eigen = SymmetricEigen::new(*matrix);
     let largest = eigen.eigenvalues.amax();
     (0..3)
         .filter(|&i| {
             let value = eigen.eigenvalues[i];
-            value.is_nan() || value <= OBSERVABILITY_TOLERANCE * largest
+            value.is_nan() || value <= tolerance * largest
         })
         .map(|i| eigen.eigenvectors.column(i).into_owned())
         .collect()

@@ -29,6 +29,7 @@ pub(super) struct Anchored {
     matches: Vec<PlaneMatch>,
     rotation: Option<UnitQuaternion<f64>>,
     prior: Vector3<f64>,
+    prior_covariance: Matrix3<f64>,
     pub unobservable: Vec<Vector3<f64>>,
 }
 
@@ -58,6 +59,7 @@ impl Anchored {
             matches: epoch.matches.clone(),
             rotation,
             prior: prior.translation,
+            prior_covariance: prior.translation_covariance,
             unobservable: Vec::with_capacity(unobservable.len()),
         };
         for direction in unobservable {
@@ -110,6 +112,7 @@ impl Anchored {
             &self.matches,
             self.rotation.as_ref(),
             &self.prior,
+            &self.prior_covariance,
             excluded,
         )
     }
@@ -175,6 +178,7 @@ mod tests {
             &matches,
             None,
             &prior.translation,
+            &prior.translation_covariance,
             &[],
         );
         assert!(matches!(

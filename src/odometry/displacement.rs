@@ -13,6 +13,7 @@
 
 use super::matching::PlaneMatch;
 use super::planes::Plane;
+use crate::estimation::PARALLEL_TOLERANCE;
 use crate::estimation::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
 
@@ -47,8 +48,15 @@ impl PlaneRow {
         }
     }
 
-    fn variance(&self, displacement: &Vector3<f64>) -> f64 {
-        self.distance_variance + displacement.dot(&(self.normal_covariance * displacement))
+    /// `E[dR^T Sigma_n dR]` over the prior `dR ~ (mean, covariance)`: at a well-known prior the
+    /// familiar term at its mean, but along a direction the other planes leave unobserved the
+    /// prior is vague, and a milliradian of normal error times a metre of motion nobody
+    /// measured is a millimetre on this row, which read as information would tell that
+    /// direction what no surface saw.
+    fn variance(&self, mean: &Vector3<f64>, covariance: &Matrix3<f64>) -> f64 {
+        self.distance_variance
+            + mean.dot(&(self.normal_covariance * mean))
+            + (self.normal_covariance * covariance).trace()
     }
 }
 
@@ -59,6 +67,7 @@ pub fn solve_displacement(
     matches: &[PlaneMatch],
     rotation: Option<&UnitQuaternion<f64>>,
     prior_displacement: &Vector3<f64>,
+    prior_covariance: &Matrix3<f64>,
     excluded: &[usize],
 ) -> Result<Solution, SolveError> {
     let active = || {
@@ -81,7 +90,7 @@ pub fn solve_displacement(
         plane_of_row: Vec::with_capacity(planes),
     };
     for (row, (k, plane)) in active().enumerate() {
-        let variance = plane.variance(prior_displacement);
+        let variance = plane.variance(prior_displacement, prior_covariance);
         if !variance.is_finite() || variance <= 0.0 {
             return Err(SolveError::BadCovariance);
         }
@@ -90,5 +99,5 @@ pub fn solve_displacement(
         system.r[(row, row)] = variance;
         system.plane_of_row.push(k);
     }
-    system.solve()
+    system.solve_within(PARALLEL_TOLERANCE)
 }

@@ -521,6 +521,7 @@ impl Odometer {
             &matches,
             solved_rotation.as_ref(),
             &prior.translation,
+            &prior.translation_covariance,
             excluded,
         );
         OdometryEpoch {

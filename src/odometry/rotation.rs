@@ -13,7 +13,9 @@
 use super::matching::PlaneMatch;
 use super::planes::Plane;
 use super::tangent_basis;
-use crate::estimation::{weakest_directions, LinearSystem, Solution, SolveError};
+use crate::estimation::{
+    directions_below, weakest_directions, LinearSystem, Solution, SolveError, PARALLEL_TOLERANCE,
+};
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x2, UnitQuaternion, Vector2, Vector3};
 
 /// Iteration limits of the rotation solve.
@@ -66,6 +68,13 @@ pub fn solve_rotation(
             .filter(|(k, _)| !excluded.contains(k))
             .map(|(k, m)| (k, &previous[m.previous], &current[m.current]))
     };
+    let geometry: Matrix3<f64> = active()
+        .map(|(_, plane_i, _)| Matrix3::identity() - plane_i.normal * plane_i.normal.transpose())
+        .sum();
+    let unobservable = directions_below(&geometry, PARALLEL_TOLERANCE);
+    if !unobservable.is_empty() {
+        return Err(SolveError::UnderDetermined { unobservable });
+    }
     let mut rotation = *prior;
     for _ in 0..parameters.max_iterations {
         let mut information = Matrix3::zeros();
