@@ -2,6 +2,8 @@
 //! the integrity verdict of the latest odometry epoch.
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::filter::ResetReason;
 use serde::Serialize;
 
 /// Integrity verdict of one odometry epoch (DESIGN.md 4.8).
@@ -45,8 +47,11 @@ pub struct Estimate {
     pub attitude_covariance: Matrix3<f64>,
     pub gyro_bias: Vector3<f64>,
     pub accel_bias: Vector3<f64>,
-    /// Incremented whenever the filter state jumps (reset after NaN, re-initialisation).
+    /// Incremented whenever the published pose jumps: a restart (divergence, an IMU gap, a
+    /// non-finite state) or a correction larger than `filter.max_position_step_m`.
     pub reset_counter: u8,
+    /// Why `reset_counter` last moved.
+    pub last_reset: Option<ResetReason>,
     /// Verdict of the most recent odometry epoch, if any has run.
     pub integrity: Option<IntegrityStatus>,
     /// Seconds since the last odometry epoch that was fused (infinite before the first).

@@ -48,6 +48,13 @@ enum Command {
         /// Keep what is complete in a truncated or damaged recording.
         #[arg(long)]
         tolerant: bool,
+        /// Start the fusion this many seconds into the recording, as a daemon started then
+        /// would (a start in motion); the summary then compares body-frame velocities only.
+        #[arg(long, value_name = "S", default_value_t = 0.0)]
+        start: f64,
+        /// Replay only this many seconds from the start.
+        #[arg(long, value_name = "S")]
+        duration: Option<f64>,
     },
     /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
     /// driver's emulator exactly as a live run records it, with /truth.
@@ -121,7 +128,19 @@ fn main() -> ExitCode {
             realtime,
             mavlink,
             tolerant,
-        } => replay_recording(recording, out, realtime, mavlink, tolerant),
+            start,
+            duration,
+        } => replay_recording(
+            recording,
+            out,
+            ReplayWindow {
+                realtime,
+                start,
+                duration,
+            },
+            mavlink,
+            tolerant,
+        ),
         Command::Simulate { scenario, out } => simulate(&scenario, &out),
         Command::IntegrityCheck {
             scenario,
@@ -219,20 +238,41 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
     })
 }
 
+/// When and how fast a replay runs.
+struct ReplayWindow {
+    realtime: bool,
+    start: f64,
+    duration: Option<f64>,
+}
+
 fn replay_recording(
     recording: Option<PathBuf>,
     out: Option<PathBuf>,
-    realtime: bool,
+    window: ReplayWindow,
     mavlink: Option<String>,
     tolerant: bool,
 ) -> Result<(), String> {
+    let seconds = |value: f64, what: &str| {
+        if value.is_finite() && value >= 0.0 {
+            Ok(value)
+        } else {
+            Err(format!(
+                "replay --{what} {value} is invalid: give a number of seconds, 0 or more"
+            ))
+        }
+    };
     let options = ReplayOptions {
         recording: replay::resolve_recording(recording).map_err(|e| e.to_string())?,
         out,
-        realtime,
+        realtime: window.realtime,
         mavlink,
         tolerant,
         progress: true,
+        start_s: seconds(window.start, "start")?,
+        duration_s: window
+            .duration
+            .map(|d| seconds(d, "duration"))
+            .transpose()?,
     };
     let (summary, _) = replay::replay(&options, |config, _| FusionEstimator::new(config))
         .map_err(|e| e.to_string())?;

@@ -53,6 +53,7 @@ fn echoed(t: f64) -> Estimate {
         gyro_bias: Vector3::zeros(),
         accel_bias: Vector3::zeros(),
         reset_counter: 0,
+        last_reset: None,
         integrity: Some(IntegrityStatus::Ok),
         since_last_fused: 0.0,
         degraded: false,

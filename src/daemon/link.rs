@@ -273,6 +273,7 @@ impl Link {
 mod tests {
     use super::*;
     use crate::daemon::mavlink_out::{heartbeat, DEFAULT_COMPONENT_ID};
+    use mavlink::dialects::ardupilotmega::MavState;
     use mavlink::dialects::ardupilotmega::TIMESYNC_DATA;
     use mavlink::{MavlinkReader, MavlinkVersion};
     use std::sync::Arc;
@@ -384,7 +385,11 @@ mod tests {
 
         let mut buffer = [0u8; 300];
         for expected_sequence in 0..3u8 {
-            let frame = link.send(&heartbeat()).await.unwrap().unwrap();
+            let frame = link
+                .send(&heartbeat(MavState::MAV_STATE_ACTIVE))
+                .await
+                .unwrap()
+                .unwrap();
             let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
                 .await
                 .unwrap()
@@ -403,7 +408,9 @@ mod tests {
             assert!(matches!(message, MavMessage::HEARTBEAT(_)));
         }
         let (_, daemon) = {
-            link.send(&heartbeat()).await.unwrap();
+            link.send(&heartbeat(MavState::MAV_STATE_ACTIVE))
+                .await
+                .unwrap();
             autopilot.recv_from(&mut buffer).await.unwrap()
         };
 
@@ -460,7 +467,12 @@ mod tests {
             port,
         };
         let link = Link::connect(&address, IDENTITY, None).await.unwrap();
-        assert_eq!(link.send(&heartbeat()).await.unwrap(), None);
+        assert_eq!(
+            link.send(&heartbeat(MavState::MAV_STATE_ACTIVE))
+                .await
+                .unwrap(),
+            None
+        );
 
         let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
         let mut hello = Vec::new();
@@ -469,7 +481,12 @@ mod tests {
             component_id: 1,
             sequence: 0,
         };
-        mavlink::write_v2_msg(&mut hello, autopilot_header, &heartbeat()).unwrap();
+        mavlink::write_v2_msg(
+            &mut hello,
+            autopilot_header,
+            &heartbeat(MavState::MAV_STATE_ACTIVE),
+        )
+        .unwrap();
         autopilot
             .send_to(&hello, ("127.0.0.1", port))
             .await
@@ -480,7 +497,7 @@ mod tests {
             .unwrap();
         assert_eq!(header.component_id, 1);
         let frame = link
-            .send(&heartbeat())
+            .send(&heartbeat(MavState::MAV_STATE_ACTIVE))
             .await
             .unwrap()
             .expect("a peer is known now");
@@ -520,7 +537,11 @@ mod tests {
         let link = Link::connect(&address, IDENTITY, Some(signing))
             .await
             .unwrap();
-        let frame = link.send(&heartbeat()).await.unwrap().unwrap();
+        let frame = link
+            .send(&heartbeat(MavState::MAV_STATE_ACTIVE))
+            .await
+            .unwrap()
+            .unwrap();
         assert_eq!(frame[2] & 0x01, 0x01, "the signed flag is set");
         assert_eq!(
             frame.len(),

@@ -9,7 +9,7 @@
 //! | estimate degraded (stale sensor, IMU gap) or covariance not finite | -1 (failed)        |
 //! | no odometry epoch fused yet, or none for more than `stale_after_s` | -1 (failed)        |
 //! | not converged since the start or a restart                         | 0 (do not use)     |
-//! | ArduPilot profiles: largest velocity sigma above `unusable_sigma_mps` | 0 (do not use)  |
+//! | largest velocity sigma above `unusable_sigma_mps` (an unobserved axis) | 0 (do not use) |
 //! | latest epoch `DetectedNotIsolable` or `UnderDetermined`            | `low` (10)         |
 //! | latest epoch `Ok`                                                  | 1-100 from sigma_v |
 //! | latest epoch `Excluded`                                            | as Ok, capped at `excluded_cap` (75) |
@@ -22,9 +22,10 @@
 //! `EK3_VIS_VERR_MAX >= 1` a confidence of 0 keeps EKF3 from starting body-odometry aiding.
 
 use crate::estimate::{Estimate, IntegrityStatus};
+use crate::filter::ResetReason;
 use mavlink::dialects::ardupilotmega::{
-    self as apm, MavAutopilot, MavEstimatorType, MavFrame, MavMessage, MavModeFlag, MavState,
-    MavType,
+    self as apm, MavAutopilot, MavEstimatorType, MavFrame, MavMessage, MavModeFlag, MavSeverity,
+    MavState, MavType,
 };
 use mavlink::MavHeader;
 use nalgebra::{Matrix3, UnitQuaternion};
@@ -129,10 +130,6 @@ impl Identity {
     }
 }
 
-/// EKF3's largest body-odometry velocity error at the defaults (`EK3_VIS_VERR_MAX`, m/s): a
-/// larger sigma cannot be expressed in a confidence, so the message must not be used.
-const ARDUPILOT_UNUSABLE_SIGMA_MPS: f64 = 0.5;
-
 /// Thresholds of the quality mapping documented at the top of this module.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct QualityPolicy {
@@ -141,9 +138,10 @@ pub struct QualityPolicy {
     /// Velocity sigma (m/s) that earns quality 100.
     pub reference_sigma_mps: f64,
     /// Velocity sigma (m/s) above which the estimate is not to be used at all: an axis the
-    /// surfaces have left unobserved for long. PX4 weighs each axis by the covariance it is
-    /// sent, so for it an unobserved axis costs nothing and the others stay useful (infinite
-    /// here); ArduPilot weighs the whole message by one confidence, so it must stop using it.
+    /// surfaces have left unobserved for long. Beyond it the filter's linearisation is no
+    /// longer to be trusted either (an unknown velocity of a metre per second turns every
+    /// attitude error into a velocity error the covariance describes only to first order), so
+    /// even PX4, which weighs each axis by its variance, must not use the message.
     pub unusable_sigma_mps: f64,
     /// Quality while the latest epoch was not fused but an earlier one is recent.
     pub low: i8,
@@ -156,7 +154,7 @@ impl Default for QualityPolicy {
         Self {
             stale_after_s: 1.0,
             reference_sigma_mps: 0.05,
-            unusable_sigma_mps: f64::INFINITY,
+            unusable_sigma_mps: 0.5,
             low: 10,
             excluded_cap: 75,
         }
@@ -164,17 +162,6 @@ impl Default for QualityPolicy {
 }
 
 impl QualityPolicy {
-    /// The default mapping, with the cut-off an autopilot that reads one number needs.
-    pub fn for_profile(profile: Profile) -> Self {
-        match profile {
-            Profile::Px4 => Self::default(),
-            Profile::Ardupilot | Profile::ArdupilotOdometry => Self {
-                unusable_sigma_mps: ARDUPILOT_UNUSABLE_SIGMA_MPS,
-                ..Self::default()
-            },
-        }
-    }
-
     /// ODOMETRY quality: -1 failed, 1 worst .. 100 best.
     pub fn quality(&self, estimate: &Estimate) -> i8 {
         let Some(sigma_v) = largest_sigma(&estimate.velocity_covariance) else {
@@ -212,15 +199,57 @@ fn largest_sigma(covariance: &Matrix3<f64>) -> Option<f64> {
 }
 
 /// HEARTBEAT of an onboard odometer (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID).
-pub fn heartbeat() -> MavMessage {
+pub fn heartbeat(system_status: MavState) -> MavMessage {
     MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
         custom_mode: 0,
         mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
         autopilot: MavAutopilot::MAV_AUTOPILOT_INVALID,
         base_mode: MavModeFlag::empty(),
-        system_status: MavState::MAV_STATE_ACTIVE,
+        system_status,
         mavlink_version: 3,
     })
+}
+
+/// What the HEARTBEAT says of the estimate: CALIBRATING before there is one and until it has
+/// converged after the start or a restart (quality 0), CRITICAL while it is failed (quality -1:
+/// a stale sensor, no odometry fused for too long), ACTIVE while it may be used.
+pub fn system_state(estimate: Option<&Estimate>, policy: &QualityPolicy) -> MavState {
+    match estimate.map(|e| policy.quality(e)) {
+        None | Some(0) => MavState::MAV_STATE_CALIBRATING,
+        Some(quality) if quality < 0 => MavState::MAV_STATE_CRITICAL,
+        Some(_) => MavState::MAV_STATE_ACTIVE,
+    }
+}
+
+/// STATUSTEXT for the ground station and the autopilot's log, cut to the 50 bytes it holds.
+pub fn statustext(severity: MavSeverity, text: &str) -> MavMessage {
+    let mut end = text.len().min(STATUSTEXT_BYTES);
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    MavMessage::STATUSTEXT(apm::STATUSTEXT_DATA {
+        severity,
+        text: text[..end].into(),
+        id: 0,
+        chunk_seq: 0,
+    })
+}
+
+const STATUSTEXT_BYTES: usize = 50;
+
+/// The STATUSTEXT telling the autopilot why `reset_counter` moved to `counter`.
+fn reset_text(counter: u8, reason: Option<ResetReason>) -> MavMessage {
+    let why = match reason {
+        Some(ResetReason::Diverged(_)) => "diverged, restarted",
+        Some(ResetReason::ImuGap { .. }) => "IMU gap, realigning",
+        Some(ResetReason::PositionStep { .. }) => "position step",
+        Some(ResetReason::NonFinitePropagation | ResetReason::NonFiniteUpdate) => "non-finite",
+        None => "reset",
+    };
+    statustext(
+        MavSeverity::MAV_SEVERITY_WARNING,
+        &format!("LADAR odometry reset {counter}: {why}"),
+    )
 }
 
 /// The answer to a TIMESYNC request (`tc1 == 0`) from `requester`, stamped with our clock in
@@ -395,6 +424,10 @@ pub struct MavlinkStream {
     last_sent: Option<Estimate>,
     /// An epoch's estimate came too soon after the previous message and is still to be carried.
     epoch_waiting: bool,
+    state: MavState,
+    reset_counter: Option<u8>,
+    /// A STATUSTEXT to send after the estimate that caused it.
+    pending_text: Option<MavMessage>,
 }
 
 impl MavlinkStream {
@@ -406,6 +439,27 @@ impl MavlinkStream {
             heartbeats: RateLimiter::new(HEARTBEAT_RATE_HZ),
             last_sent: None,
             epoch_waiting: false,
+            state: system_state(None, &policy),
+            reset_counter: None,
+            pending_text: None,
+        }
+    }
+
+    /// The HEARTBEAT state of the newest estimate.
+    pub fn system_state(&self) -> MavState {
+        self.state
+    }
+
+    /// A STATUSTEXT the newest estimates call for (a reset), once.
+    pub fn take_statustext(&mut self) -> Option<MavMessage> {
+        self.pending_text.take()
+    }
+
+    fn observe(&mut self, estimate: &Estimate) {
+        self.state = system_state(Some(estimate), &self.policy);
+        let previous = self.reset_counter.replace(estimate.reset_counter);
+        if previous.is_some_and(|counter| counter != estimate.reset_counter) {
+            self.pending_text = Some(reset_text(estimate.reset_counter, estimate.last_reset));
         }
     }
 
@@ -413,13 +467,18 @@ impl MavlinkStream {
         self.profile
     }
 
+    pub fn policy(&self) -> QualityPolicy {
+        self.policy
+    }
+
     pub fn heartbeat_due(&mut self, now: f64) -> Option<MavMessage> {
-        self.heartbeats.ready(now).then(heartbeat)
+        self.heartbeats.ready(now).then(|| heartbeat(self.state))
     }
 
     /// The message for this estimate if one is due at `now`. The ArduPilot delta profile sends
     /// nothing for the first estimate (and after a reset): it needs a previous one.
     pub fn on_estimate(&mut self, now: f64, estimate: &Estimate) -> Option<MavMessage> {
+        self.observe(estimate);
         if self.epoch_waiting && self.spaced_from_last(estimate.t) {
             self.epoch_waiting = false;
             self.estimates.restart(now, EPOCH_RESTART_PERIODS);
@@ -432,6 +491,7 @@ impl MavlinkStream {
     /// The message for the estimate an odometry epoch published, if the profile sends epochs
     /// early and the previous message is not too recent; otherwise a later estimate carries it.
     pub fn on_epoch_estimate(&mut self, estimate: &Estimate) -> Option<MavMessage> {
+        self.observe(estimate);
         self.profile.epoch_spacing_s()?;
         if !self.spaced_from_last(estimate.t) {
             self.epoch_waiting = true;
@@ -496,6 +556,7 @@ mod tests {
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
             reset_counter: 0,
+            last_reset: None,
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.1,
             degraded: false,
@@ -506,7 +567,7 @@ mod tests {
     #[test]
     fn heartbeat_matches_the_cross_validated_vector() {
         assert_eq!(
-            encode(0, &heartbeat()),
+            encode(0, &heartbeat(MavState::MAV_STATE_ACTIVE)),
             "fd0900000001c50000000000000012080004031ee4"
         );
     }
@@ -653,12 +714,17 @@ mod tests {
         e.integrity = Some(IntegrityStatus::Ok);
         e.velocity_covariance[(0, 0)] = f64::NAN;
         assert_eq!(policy.quality(&e), -1);
+        e.velocity_covariance = Matrix3::identity() * 0.16;
+        assert_eq!(policy.quality(&e), 12, "sigma 0.4 m/s: usable, barely");
         e.velocity_covariance = Matrix3::identity() * 100.0;
         assert_eq!(
             policy.quality(&e),
-            1,
-            "huge but finite covariance is worst, not failed"
+            0,
+            "huge but finite covariance: an unobserved axis, not to be used, not failed"
         );
+        e.velocity_covariance = Matrix3::identity() * 1e-4;
+        e.converged = false;
+        assert_eq!(policy.quality(&e), 0, "not converged since the start");
     }
 
     #[test]

@@ -13,8 +13,8 @@ use super::latency::LatencyLog;
 use super::link::{Link, LinkError};
 use super::mavlink_out::{heartbeat, MavlinkStream, RateLimiter, HEARTBEAT_RATE_HZ};
 use crate::estimate::Estimate;
-use mavlink::dialects::ardupilotmega::MavMessage;
-use std::sync::{Mutex, PoisonError};
+use mavlink::dialects::ardupilotmega::{MavMessage, MavState};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
@@ -34,10 +34,14 @@ pub struct Outgoing {
 /// Messages waiting for the link: a second of ODOMETRY at 50 Hz.
 pub const QUEUE_MESSAGES: usize = 64;
 
+/// The HEARTBEAT state the fusion thread decides and the MAVLink task sends at 1 Hz.
+pub type SharedState = Arc<Mutex<MavState>>;
+
 /// The fusion thread's end: decides with the profile's stream and hands over without waiting.
 pub struct Feed {
     stream: MavlinkStream,
     messages: mpsc::Sender<Outgoing>,
+    state: SharedState,
     /// Read time of the chunk that closed the newest epoch no message has carried yet.
     epoch_read_ns: Option<u64>,
     dropped: u64,
@@ -45,10 +49,15 @@ pub struct Feed {
 }
 
 impl Feed {
-    pub fn new(stream: MavlinkStream, messages: mpsc::Sender<Outgoing>) -> Self {
+    pub fn new(
+        stream: MavlinkStream,
+        messages: mpsc::Sender<Outgoing>,
+        state: SharedState,
+    ) -> Self {
         Self {
             stream,
             messages,
+            state,
             epoch_read_ns: None,
             dropped: 0,
             falling_behind: false,
@@ -59,6 +68,7 @@ impl Feed {
     pub fn estimate(&mut self, estimate: &Estimate) {
         let message = self.stream.on_estimate(estimate.t, estimate);
         self.hand_over(message);
+        self.after_estimate();
     }
 
     /// The estimate of an epoch closed by the chunk read at `read_ns`: sent at once where the
@@ -67,6 +77,14 @@ impl Feed {
         self.epoch_read_ns = Some(read_ns);
         let message = self.stream.on_epoch_estimate(estimate);
         self.hand_over(message);
+        self.after_estimate();
+    }
+
+    /// Hands over the STATUSTEXT an estimate called for and publishes the HEARTBEAT state.
+    fn after_estimate(&mut self) {
+        let text = self.stream.take_statustext();
+        self.hand_over(text);
+        *self.state.lock().unwrap_or_else(PoisonError::into_inner) = self.stream.system_state();
     }
 
     /// Messages lost because the link did not keep up.
@@ -115,6 +133,7 @@ pub async fn run(
     now_ns: impl Fn() -> u64,
     mut on_sent: impl FnMut(&[u8]),
     latency: &Mutex<LatencyLog>,
+    state: &Mutex<MavState>,
     cancel: CancellationToken,
 ) -> Result<(), LinkError> {
     let mut heartbeat_poll = tokio::time::interval(HEARTBEAT_POLL);
@@ -130,7 +149,10 @@ pub async fn run(
             _ = heartbeat_poll.tick() => {
                 let now_s = now_ns() as f64 * 1e-9;
                 match heartbeats.ready(now_s) {
-                    true => Outgoing { message: heartbeat(), epoch_read_ns: None },
+                    true => Outgoing {
+                        message: heartbeat(*state.lock().unwrap_or_else(PoisonError::into_inner)),
+                        epoch_read_ns: None,
+                    },
                     false => continue,
                 }
             }
@@ -156,7 +178,6 @@ mod tests {
     use crate::estimate::IntegrityStatus;
     use mavlink::{MavlinkReader, MavlinkVersion};
     use nalgebra::{Matrix3, UnitQuaternion, Vector3};
-    use std::sync::Arc;
     use tokio::net::UdpSocket;
     use tokio::time::timeout;
 
@@ -174,6 +195,7 @@ mod tests {
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
             reset_counter: 0,
+            last_reset: None,
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.0,
             degraded: false,
@@ -207,7 +229,17 @@ mod tests {
                 let on_sent = |f: &[u8]| sent.lock().unwrap().push(f.to_vec());
                 // The clock stands at 3 ms: one heartbeat, and 2 ms from a read at 1 ms.
                 let now_ns = || 3_000_000;
-                run(&link, messages_rx, now_ns, on_sent, &latency, cancel).await
+                let state = Mutex::new(MavState::MAV_STATE_ACTIVE);
+                run(
+                    &link,
+                    messages_rx,
+                    now_ns,
+                    on_sent,
+                    &latency,
+                    &state,
+                    cancel,
+                )
+                .await
             })
         };
         let policy = QualityPolicy::default();
@@ -285,6 +317,7 @@ mod tests {
                 || 0,
                 |_| {},
                 &latency,
+                &Mutex::new(MavState::MAV_STATE_ACTIVE),
                 CancellationToken::new(),
             ),
         )

@@ -9,6 +9,7 @@
 pub mod chunk_queue;
 pub mod config;
 pub mod fusion_estimator;
+pub mod health;
 pub mod in_process;
 pub mod latency;
 pub mod link;

@@ -139,6 +139,7 @@ mod tests {
     use crate::daemon::mavlink_out::{heartbeat, DEFAULT_COMPONENT_ID};
     use crate::estimate::IntegrityStatus;
     use mavlink::dialects::ardupilotmega::MavMessage;
+    use mavlink::dialects::ardupilotmega::MavState;
     use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
     use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
@@ -156,6 +157,7 @@ mod tests {
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
             reset_counter: 0,
+            last_reset: None,
             integrity: Some(IntegrityStatus::Ok),
             since_last_fused: 0.0,
             degraded: false,
@@ -201,7 +203,8 @@ mod tests {
                 sequence,
             };
             let mut frame = Vec::new();
-            mavlink::write_v2_msg(&mut frame, header, &heartbeat()).unwrap();
+            mavlink::write_v2_msg(&mut frame, header, &heartbeat(MavState::MAV_STATE_ACTIVE))
+                .unwrap();
             out.mavlink(1_000_000 + u64::from(sequence), &frame)
                 .unwrap();
             frames.push(frame);

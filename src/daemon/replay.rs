@@ -6,13 +6,14 @@ use super::config::Config;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
 use super::outputs::{OutputError, Outputs};
-use super::pipeline::{sensor_specs, Chunk, Estimator, Output, Pipeline, SensorSpec};
+use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
-use super::truth::{truth_errors, TruthErrors};
+use super::truth::{autopilot_view, truth_errors, AutopilotView, TruthErrors};
 use crate::estimate::Estimate;
 use crate::fusion::sources::{DecodeCounts, SensorSetup};
+use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::MAVLinkV2MessageRaw;
 use std::fmt;
@@ -39,6 +40,11 @@ pub struct ReplayOptions {
     pub tolerant: bool,
     /// Draw a progress bar (only drawn on a terminal in any case).
     pub progress: bool,
+    /// Seconds into the recording at which the fusion starts: an in-motion start anywhere. The
+    /// decoders still read everything before (a scanner's geometry comes only at its start-up).
+    pub start_s: f64,
+    /// Seconds replayed from `start_s` on; `None` to the end.
+    pub duration_s: Option<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -71,6 +77,7 @@ pub struct ReplaySummary {
     pub detections: u64,
     pub exclusions: u64,
     pub truth: Option<TruthErrors>,
+    pub autopilot: Option<AutopilotView>,
     pub loss: Option<Loss>,
 }
 
@@ -120,11 +127,33 @@ impl fmt::Display for ReplaySummary {
             }
             None => writeln!(f, "  no truth to compare with")?,
         }
+        if let Some(view) = &self.autopilot {
+            write_autopilot_view(f, view)?;
+        }
         if let Some(loss) = &self.loss {
             writeln!(f, "  warning: {loss}")?;
         }
         Ok(())
     }
+}
+
+fn write_autopilot_view(f: &mut fmt::Formatter<'_>, view: &AutopilotView) -> fmt::Result {
+    let first = view.first_valid_after_s.map_or_else(
+        || "never".to_string(),
+        |s| format!("{s:.1} s after the start"),
+    );
+    writeln!(
+        f,
+        "  what the autopilot was told ({} of {} estimates valid, the first {first}, {} resets):",
+        view.valid, view.estimates, view.resets
+    )?;
+    writeln!(
+        f,
+        "    body velocity inside 3 sigma {}, mean NEES {} (1 if honest), worst error {:.3} m/s",
+        triple(view.inside_3_sigma, 3),
+        triple(view.mean_nees, 2),
+        view.worst_valid_error_mps
+    )
 }
 
 /// The recording to replay: the given one, or the bundled one if it exists.
@@ -174,7 +203,13 @@ pub fn replay<E: Estimator>(
             specs.push(spec_for(message, 0));
         }
     }
-    let estimator = make_estimator(config.as_ref(), &specs);
+    let first_s = first.as_ref().map_or(0.0, |m| m.log_time_ns as f64 * 1e-9);
+    let from_s = first_s + options.start_s;
+    let until_s = options.duration_s.map(|d| from_s + d);
+    let estimator = FromTime {
+        inner: make_estimator(config.as_ref(), &specs),
+        from_s,
+    };
     let mut pipeline = Pipeline::new(specs, estimator);
     let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
@@ -183,6 +218,9 @@ pub fn replay<E: Estimator>(
     let started = Instant::now();
     let mut next = first;
     while let Some(message) = next {
+        if until_s.is_some_and(|until| message.log_time_ns as f64 * 1e-9 > until) {
+            break;
+        }
         let sensor = match pipeline.sensor_named(&message.sensor) {
             Some(sensor) => sensor,
             None if discover => {
@@ -230,6 +268,12 @@ pub fn replay<E: Estimator>(
         .unwrap_or_default()
         .filter
         .stationary_start_s;
+    // A start anywhere but the beginning has its own origin and north: only body axes compare.
+    let ned_truth = if options.start_s > 0.0 {
+        None
+    } else {
+        truth_errors(&tally.kept, &truth, stationary_start_s)
+    };
     let summary = ReplaySummary {
         duration_s: tally.duration_s(),
         chunks: tally.chunks,
@@ -245,10 +289,51 @@ pub fn replay<E: Estimator>(
         planes: tally.planes,
         detections: tally.detections,
         exclusions: tally.exclusions,
-        truth: truth_errors(&tally.kept, &truth, stationary_start_s),
+        truth: ned_truth,
+        autopilot: autopilot_view(&tally.kept, &truth, &mavlink.stream.policy()),
         loss: reader.loss().cloned(),
     };
-    Ok((summary, pipeline.into_estimator()))
+    Ok((summary, pipeline.into_estimator().inner))
+}
+
+/// Holds back the IMU samples and scans before `from_s` (host time), so that a replay can
+/// start anywhere in a recording: the decoders still see every byte, the fusion only what comes
+/// after, as a daemon started at that moment would.
+struct FromTime<E> {
+    inner: E,
+    from_s: f64,
+}
+
+impl<E: Estimator> Estimator for FromTime<E> {
+    type Epoch = E::Epoch;
+
+    fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
+        self.inner.geometry(scanner, geometry);
+    }
+
+    fn imu(&mut self, sample: ImuSample) -> Option<Estimate> {
+        (sample.time() >= self.from_s)
+            .then(|| self.inner.imu(sample))
+            .flatten()
+    }
+
+    fn scan(&mut self, scan: Scan) -> Option<Self::Epoch> {
+        (scan.t0 >= self.from_s)
+            .then(|| self.inner.scan(scan))
+            .flatten()
+    }
+
+    fn epoch_estimate(&self) -> Option<Estimate> {
+        self.inner.epoch_estimate()
+    }
+
+    fn sensor_stale(&mut self, sensor: usize, stale: bool, t: f64) {
+        self.inner.sensor_stale(sensor, stale, t);
+    }
+
+    fn epoch_counts(epoch: &Self::Epoch) -> EpochCounts {
+        E::epoch_counts(epoch)
+    }
 }
 
 fn spec_for(message: &RecordedMessage, index: usize) -> SensorSpec {
@@ -352,7 +437,10 @@ impl Tally {
             }
             Output::EpochEstimate(estimate) => {
                 let message = mavlink.stream.on_epoch_estimate(&estimate);
-                mavlink.send(message, estimate.t, outputs)?;
+                let mut outputs = outputs;
+                mavlink.send(message, estimate.t, outputs.as_deref_mut())?;
+                let text = mavlink.stream.take_statustext();
+                mavlink.send(text, estimate.t, outputs)?;
             }
             Output::Epoch(epoch) => {
                 let counts = E::epoch_counts(&epoch);
@@ -405,7 +493,7 @@ impl MavlinkOut {
             }
         };
         Ok(Self {
-            stream: MavlinkStream::new(profile, rate_hz, QualityPolicy::for_profile(profile)),
+            stream: MavlinkStream::new(profile, rate_hz, QualityPolicy::default()),
             identity,
             sequence: 0,
             link,
@@ -421,7 +509,9 @@ impl MavlinkOut {
         let heartbeat = self.stream.heartbeat_due(estimate.t);
         self.send(heartbeat, estimate.t, outputs.as_deref_mut())?;
         let message = self.stream.on_estimate(estimate.t, estimate);
-        self.send(message, estimate.t, outputs)
+        self.send(message, estimate.t, outputs.as_deref_mut())?;
+        let text = self.stream.take_statustext();
+        self.send(text, estimate.t, outputs)
     }
 
     /// Sends `message`, if any, and logs it in `mavlink.tlog` at estimate time `t`.

@@ -7,10 +7,11 @@
 
 use super::chunk_queue::{ChunkQueue, Popped, QUEUE_CHUNKS};
 use super::config::{Config, ConfigErrors, ImuOutput, ScanStream};
+use super::health::Health;
 use super::latency::{LatencyLog, LatencySummary};
 use super::link::{Link, LinkError};
 use super::mavlink_out::{MavlinkStream, QualityPolicy};
-use super::mavlink_task::{Feed, Outgoing, QUEUE_MESSAGES};
+use super::mavlink_task::{Feed, Outgoing, SharedState, QUEUE_MESSAGES};
 use super::outputs::{OutputError, Outputs};
 use super::pipeline::{sensor_specs, Estimator, Output, Pipeline, SensorSpec};
 use super::recorder_thread::{self, RecorderHandle, RecorderSummary, Tap};
@@ -18,6 +19,7 @@ use super::recording::{Recorder, RecordingError};
 use super::sensor_task::{self, Driver, HostClock, SensorLink};
 use super::{mavlink_task, watchdog};
 use crate::fusion::sources::DecodeCounts;
+use mavlink::dialects::ardupilotmega::MavState;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -107,27 +109,29 @@ where
     let tracker = TaskTracker::new();
     let tasks_cancel = cancel.child_token();
     let mavlink_latency = Arc::new(Mutex::new(LatencyLog::new("scan-to-MAVLink")));
+    let system_state: SharedState = Arc::new(Mutex::new(MavState::MAV_STATE_CALIBRATING));
     let feed = match &config.mavlink {
         Some(section) => {
             let signing = section.signing().map_err(RunError::Signing)?;
             let address = section.address();
             let link = Arc::new(Link::connect(&address, section.identity(), signing).await?);
             let (messages, messages_rx) = mpsc::channel(QUEUE_MESSAGES);
+            let shared = MavlinkShared {
+                outputs: outputs.clone(),
+                latency: mavlink_latency.clone(),
+                state: system_state.clone(),
+            };
             spawn_mavlink(
                 &tracker,
                 link,
                 messages_rx,
-                outputs.clone(),
-                mavlink_latency.clone(),
+                shared,
                 clock,
                 tasks_cancel.clone(),
             );
-            let stream = MavlinkStream::new(
-                section.profile,
-                section.rate_hz(),
-                QualityPolicy::for_profile(section.profile),
-            );
-            Some(Feed::new(stream, messages))
+            let stream =
+                MavlinkStream::new(section.profile, section.rate_hz(), QualityPolicy::default());
+            Some(Feed::new(stream, messages, system_state.clone()))
         }
         None => None,
     };
@@ -285,15 +289,28 @@ async fn wait_streaming(flags: &[Arc<AtomicBool>]) {
     }
 }
 
+/// What the MAVLink task shares with the rest of the daemon.
+struct MavlinkShared {
+    /// `mavlink.tlog` goes here.
+    outputs: Arc<Mutex<Option<Outputs>>>,
+    latency: Arc<Mutex<LatencyLog>>,
+    /// The HEARTBEAT state the fusion decides.
+    state: SharedState,
+}
+
 fn spawn_mavlink(
     tracker: &TaskTracker,
     link: Arc<Link>,
     messages: mpsc::Receiver<Outgoing>,
-    outputs: Arc<Mutex<Option<Outputs>>>,
-    latency: Arc<Mutex<LatencyLog>>,
+    shared: MavlinkShared,
     clock: HostClock,
     cancel: CancellationToken,
 ) {
+    let MavlinkShared {
+        outputs,
+        latency,
+        state,
+    } = shared;
     let tlog = move |frame: &[u8]| {
         let wall_us = SystemTime::now()
             .duration_since(UNIX_EPOCH)
@@ -318,7 +335,7 @@ fn spawn_mavlink(
     tracker.spawn(receiver);
     tracker.spawn(async move {
         let now_ns = move || clock.now_ns();
-        let sent = mavlink_task::run(&link, messages, now_ns, tlog, &latency, cancel).await;
+        let sent = mavlink_task::run(&link, messages, now_ns, tlog, &latency, &state, cancel).await;
         if let Err(e) = sent {
             tracing::error!("{e}; MAVLink output stopped");
         }
@@ -349,6 +366,7 @@ fn fusion_loop<E: Estimator>(
         .collect();
     let mut chunks = 0;
     let mut latency = LatencyLog::new("scan-to-fused");
+    let mut health = Health::new(names.iter().map(|(name, _)| name.to_string()).collect());
     loop {
         progress.advance();
         let chunk = match queue.pop(Duration::from_millis(100)) {
@@ -358,10 +376,19 @@ fn fusion_loop<E: Estimator>(
         };
         chunks += 1;
         let mut closed_epoch = false;
+        let mut newest = None;
         pipeline.push(&chunk, |output| {
             closed_epoch |= matches!(output, Output::Epoch(_));
+            if let Output::Estimate(estimate) = &output {
+                newest = Some(estimate.clone());
+            }
             deliver::<E>(output, chunk.log_time_ns, outputs, feed.as_mut());
         });
+        let stale: Vec<bool> = (0..names.len()).map(|k| pipeline.is_stale(k)).collect();
+        let now_s = chunk.log_time_ns as f64 * 1e-9;
+        if let Some(line) = health.observe(newest.as_ref(), &stale, now_s) {
+            watchdog::status(&line);
+        }
         if closed_epoch {
             latency.add(chunk.log_time_ns, clock.now_ns());
         }

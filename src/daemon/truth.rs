@@ -2,6 +2,7 @@
 //! `fusion::evaluate` reports on the same scenario: per-axis NED velocity and roll/pitch/yaw
 //! errors, after the filter's stationary start (alignment is not accuracy).
 
+use super::mavlink_out::QualityPolicy;
 use crate::estimate::Estimate;
 use crate::fusion::evaluate::ErrorSeries;
 use crate::sensors::TruthSample;
@@ -43,6 +44,65 @@ pub fn truth_errors(
     })
 }
 
+/// What the autopilot was told, judged against `/truth`: the body-frame velocity and its
+/// covariance as ODOMETRY carries them, for the estimates whose quality says "use me". Body
+/// axes do not depend on where the filter put its origin and north, so this holds for a replay
+/// started anywhere in a recording.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AutopilotView {
+    pub estimates: usize,
+    /// Estimates with quality >= 1.
+    pub valid: usize,
+    /// Seconds from the first estimate to the first valid one.
+    pub first_valid_after_s: Option<f64>,
+    /// Per body axis: the share of valid estimates whose error is within 3 reported sigmas.
+    pub inside_3_sigma: [f64; 3],
+    /// Per body axis: the mean squared error over the reported variance (1 when honest).
+    pub mean_nees: [f64; 3],
+    /// Largest body-velocity error of a valid estimate, m/s.
+    pub worst_valid_error_mps: f64,
+    /// Times `reset_counter` moved.
+    pub resets: usize,
+}
+
+/// The autopilot's view of `estimates` (in time order), with `policy`'s quality.
+pub fn autopilot_view(
+    estimates: &[Estimate],
+    truth: &[TruthSample],
+    policy: &QualityPolicy,
+) -> Option<AutopilotView> {
+    let first = estimates.first()?;
+    let mut view = AutopilotView {
+        estimates: estimates.len(),
+        valid: 0,
+        first_valid_after_s: None,
+        inside_3_sigma: [0.0; 3],
+        mean_nees: [0.0; 3],
+        worst_valid_error_mps: 0.0,
+        resets: estimates
+            .windows(2)
+            .filter(|pair| pair[0].reset_counter != pair[1].reset_counter)
+            .count(),
+    };
+    for estimate in estimates.iter().filter(|e| policy.quality(e) >= 1) {
+        let truth = nearest(truth, estimate.t)?;
+        let error = estimate.body_velocity() - truth.q.inverse_transform_vector(&truth.v);
+        let variance = estimate.body_velocity_covariance().diagonal();
+        view.first_valid_after_s.get_or_insert(estimate.t - first.t);
+        view.valid += 1;
+        view.worst_valid_error_mps = view.worst_valid_error_mps.max(error.amax());
+        for axis in 0..3 {
+            let squared = error[axis] * error[axis] / variance[axis];
+            view.inside_3_sigma[axis] += f64::from(u8::from(squared <= 9.0));
+            view.mean_nees[axis] += squared;
+        }
+    }
+    let valid = view.valid.max(1) as f64;
+    view.inside_3_sigma = view.inside_3_sigma.map(|n| n / valid);
+    view.mean_nees = view.mean_nees.map(|n| n / valid);
+    Some(view)
+}
+
 fn nearest(truth: &[TruthSample], t: f64) -> Option<&TruthSample> {
     let after = truth.partition_point(|s| s.t < t);
     [after.checked_sub(1), Some(after)]
@@ -80,11 +140,35 @@ mod tests {
             gyro_bias: Vector3::zeros(),
             accel_bias: Vector3::zeros(),
             reset_counter: 0,
+            last_reset: None,
             integrity: None,
             since_last_fused: 0.0,
             degraded: false,
             converged: true,
         }
+    }
+
+    #[test]
+    fn the_autopilot_view_judges_valid_estimates_in_body_axes_against_their_sigmas() {
+        let truth: Vec<_> = (0..100).map(|k| truth(k as f64 * 0.1)).collect();
+        let mut estimates = vec![
+            estimate(0.5, 5.0, 0.0),
+            estimate(2.0, 1.1, 0.0),
+            estimate(3.0, 4.0, 0.0),
+        ];
+        for estimate in &mut estimates {
+            estimate.integrity = Some(crate::estimate::IntegrityStatus::Ok);
+            estimate.velocity_covariance = Matrix3::identity() * 0.25;
+        }
+        estimates[0].converged = false;
+        estimates[2].reset_counter = 1;
+        let view = autopilot_view(&estimates, &truth, &QualityPolicy::default()).unwrap();
+        assert_eq!((view.estimates, view.valid, view.resets), (3, 2, 1));
+        assert_eq!(view.first_valid_after_s, Some(1.5));
+        // Errors 0.1 and 3 m/s against a sigma of 0.5: one inside, NEES (0.04 + 36) / 2.
+        assert_eq!(view.inside_3_sigma[0], 0.5);
+        assert!((view.mean_nees[0] - 18.02).abs() < 1e-9);
+        assert!((view.worst_valid_error_mps - 3.0).abs() < 1e-9);
     }
 
     #[test]

@@ -56,6 +56,12 @@ async fn notify(state: NotifyState<'static>) {
     let _ = tokio::task::spawn_blocking(move || sd_notify::notify(&[state])).await;
 }
 
+/// Replaces the status line of `systemctl status` (from the fusion thread: a datagram, no
+/// waiting; outside systemd it does nothing).
+pub fn status(line: &str) {
+    let _ = sd_notify::notify(&[NotifyState::Status(line)]);
+}
+
 /// Tells systemd the daemon is up (`Type=notify`), with a status line for `systemctl status`.
 pub async fn ready(status: &str) {
     let status = status.to_string();

@@ -123,14 +123,10 @@ pub struct FilterConfig {
     /// ones linearise about a guessed velocity and tilt, and their covariance is not yet to
     /// be believed. An axis no surface observes stays uncertain after that, and says so.
     pub converged_after_epochs: u32,
-    /// A speed above this (m/s) is taken as a diverged filter, which then restarts.
+    /// A speed above this (m/s) is taken as a diverged filter, which then restarts: set it
+    /// above the platform's top speed. A velocity no surface observes runs off, honestly
+    /// uncertain, until it gets here.
     pub max_speed_mps: f64,
-    /// The platform's speed prior, m/s: the sigma of its velocity on each axis at any time.
-    /// It bounds a velocity the odometry leaves unobserved (see `Eskf::bound_velocity`); raise
-    /// it for a platform that flies faster than about twice this.
-    pub speed_prior_sigma_mps: f64,
-    /// How often the speed prior is considered, s.
-    pub speed_prior_interval_s: f64,
     /// Fused relative poses over which the divergence guard sums the NIS.
     pub divergence_window: u32,
     /// Relative poses refused by the gate in a row that count as divergence.
@@ -182,9 +178,7 @@ impl Default for FilterConfig {
             moving_start_sigma_tilt_deg: 3.0,
             moving_start_sigma_gyro_bias: 0.3 * DEG,
             converged_after_epochs: 3,
-            max_speed_mps: 20.0,
-            speed_prior_sigma_mps: 2.0,
-            speed_prior_interval_s: 1.0,
+            max_speed_mps: 15.0,
             divergence_window: 10,
             divergence_refused_in_row: 5,
             max_position_step_m: 0.1,
@@ -263,8 +257,6 @@ impl FilterConfig {
                 f64::from(self.converged_after_epochs),
             ),
             ("max_speed_mps", self.max_speed_mps),
-            ("speed_prior_sigma_mps", self.speed_prior_sigma_mps),
-            ("speed_prior_interval_s", self.speed_prior_interval_s),
             ("divergence_window", f64::from(self.divergence_window)),
             (
                 "divergence_refused_in_row",

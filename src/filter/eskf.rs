@@ -108,8 +108,6 @@ pub enum UpdateKind {
     RelativePoseCloned,
     RelativePoseVelocity,
     ZeroMotion,
-    /// The platform's speed prior on a velocity the odometry leaves unobserved.
-    SpeedPrior,
 }
 
 /// Outcome of one measurement update.
@@ -172,7 +170,6 @@ pub struct Eskf {
     gravity: Vector3<f64>,
     noise: ProcessNoise,
     gate: GateThresholds,
-    ungated: GateThresholds,
     phase: FilterPhase,
     state: NominalState,
     covariance: Covariance,
@@ -198,8 +195,6 @@ pub struct Eskf {
     converged: bool,
     /// Relative poses fused since the last (re)start.
     fused_since_start: u32,
-    /// When the speed prior was last considered.
-    last_speed_prior: Option<f64>,
     /// Every sample and every `zupt_interval_s` part of the current alignment window looked
     /// still.
     window_still: bool,
@@ -260,7 +255,6 @@ impl Eskf {
             gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
             noise: ProcessNoise::new(&config),
             gate: GateThresholds::new(config.gate_probability),
-            ungated: GateThresholds::new(1.0),
             phase: FilterPhase::Aligning,
             state,
             covariance,
@@ -282,7 +276,6 @@ impl Eskf {
             guard: DivergenceGuard::new(&config),
             converged: false,
             fused_since_start: 0,
-            last_speed_prior: None,
             window_still: true,
             first_part: None,
             resume: None,
@@ -356,7 +349,6 @@ impl Eskf {
                 if let Some(reason) = self.propagate(&increment) {
                     return ImuOutcome::Reset(reason);
                 }
-                self.bound_velocity(t);
                 if self.phase == FilterPhase::StationaryStart {
                     self.stationary_updates(t, sample, interval);
                 }
@@ -533,43 +525,6 @@ impl Eskf {
         if t - start >= self.config.stationary_start_s {
             self.phase = FilterPhase::Navigating;
         }
-    }
-
-    /// Along a velocity direction no surface has observed for long (a bare corridor, a start
-    /// in motion with nothing ahead), the IMU integrates its tilt and bias errors without
-    /// bound: honest, but the estimate runs off to speeds no indoor platform flies, and with it
-    /// deskewing and the linearisation. Once per `speed_prior_interval_s`, a velocity sigma
-    /// beyond half of `speed_prior_sigma_mps` takes the platform's speed prior (zero with that
-    /// sigma on each axis), which bounds it at about that sigma, and nothing else.
-    fn bound_velocity(&mut self, t: f64) {
-        let due = self
-            .last_speed_prior
-            .is_none_or(|last| t - last >= self.config.speed_prior_interval_s);
-        if !due {
-            return;
-        }
-        self.last_speed_prior = Some(t);
-        let sigma = self.config.speed_prior_sigma_mps;
-        let largest = self
-            .covariance
-            .fixed_view::<3, 3>(VEL, VEL)
-            .into_owned()
-            .symmetric_eigenvalues()
-            .max();
-        if largest <= (0.5 * sigma).powi(2) {
-            return;
-        }
-        let mut rows = Stacked::default();
-        let mut h = super::update::Jacobian3::zeros();
-        h.fixed_view_mut::<3, 3>(0, VEL)
-            .copy_from(&Matrix3::identity());
-        rows.push(
-            &-self.state.v,
-            &h,
-            &(Matrix3::identity() * sigma * sigma),
-            &super::update::Observability::full(),
-        );
-        let _ = self.fuse(&rows, UpdateKind::SpeedPrior, t);
     }
 
     fn end_stationary_start(&mut self) {
@@ -785,13 +740,8 @@ impl Eskf {
             return Err(UpdateError::NonFinite);
         }
         let mut covariance = self.covariance;
-        // A prior is what is known whatever the state says: it is never gated.
-        let gate = match kind {
-            UpdateKind::SpeedPrior => &self.ungated,
-            _ => &self.gate,
-        };
-        let gated =
-            update::apply(&mut covariance, rows, gate).map_err(|_| UpdateError::BadCovariance)?;
+        let gated = update::apply(&mut covariance, rows, &self.gate)
+            .map_err(|_| UpdateError::BadCovariance)?;
         let report = UpdateReport {
             kind,
             t,
@@ -1065,6 +1015,7 @@ impl Eskf {
             gyro_bias: self.imu_to_body * self.state.gyro_bias,
             accel_bias: self.imu_to_body * self.state.accel_bias,
             reset_counter: self.reset_counter,
+            last_reset: self.last_reset,
             integrity: None,
             since_last_fused: self.last_fused.map_or(f64::INFINITY, |last| t - last),
             degraded: self.degraded.is_some() || self.phase == FilterPhase::Aligning,

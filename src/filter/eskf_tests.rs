@@ -79,13 +79,8 @@ fn noise_free_filter_tracks_a_spinning_drift_with_both_imu_outputs() {
         rate: Vector3::new(0.3, -0.2, 0.5),
         velocity: Vector3::new(1.0, -0.5, 0.2),
     };
-    // Pure dead reckoning: no speed prior pulling the 1.1 m/s towards rest.
-    let config = FilterConfig {
-        speed_prior_sigma_mps: 1e3,
-        ..FilterConfig::default()
-    };
     for delta in [false, true] {
-        let mut filter = start_at_truth(config.clone(), &trajectory, 0.0);
+        let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
         feed(
             &mut filter,
             &trajectory.imu_samples(0.0, 10.0, 400.0, delta),
