@@ -103,6 +103,10 @@ enum Command {
         /// Host to listen on with --tcp-port.
         #[arg(long, default_value = "127.0.0.1", requires = "tcp_port")]
         tcp_host: String,
+        /// With --scenario: begin this many seconds into it, as if the emulators had been
+        /// serving that long (a daemon started in flight).
+        #[arg(long, value_name = "S", default_value_t = 0.0, requires = "scenario")]
+        start: f64,
         /// Write a configuration pointing at the emulators, for `run --config`.
         #[arg(long, value_name = "FILE")]
         write_config: Option<PathBuf>,
@@ -162,10 +166,11 @@ fn main() -> ExitCode {
             scenario,
             tcp_port,
             tcp_host,
+            start,
             write_config,
         } => serve_emulators(
             config,
-            scenario,
+            scenario.map(|name| (name, start)),
             tcp_port.map(|p| (tcp_host, p)),
             write_config,
         ),
@@ -325,14 +330,20 @@ fn integrity_check(
 
 fn serve_emulators(
     config: Option<PathBuf>,
-    scenario: Option<String>,
+    scenario: Option<(String, f64)>,
     scanner_tcp: Option<(String, u16)>,
     write_config: Option<PathBuf>,
 ) -> Result<(), String> {
     let source = match (&config, &scenario) {
         (Some(path), _) => serve::Source::Config(path),
-        (None, Some(name)) => serve::Source::Scenario {
+        (None, Some((_, start))) if !(start.is_finite() && *start >= 0.0) => {
+            return Err(format!(
+                "serve-emulators --start {start} is invalid: give a number of seconds, 0 or more"
+            ))
+        }
+        (None, Some((name, start_s))) => serve::Source::Scenario {
             name,
+            start_s: *start_s,
             scanner_tcp: scanner_tcp
                 .as_ref()
                 .map(|(host, port)| (host.as_str(), *port)),

@@ -559,3 +559,92 @@ fn assert_replay_output_exists(dir: &Path) {
     }
     assert!(std::fs::metadata(dir.join("mavlink.tlog")).unwrap().len() > 0);
 }
+
+/// Situation 1 of the honest-velocity issue: the daemon started while the platform already
+/// hovers (a systemd restart in flight). Every ODOMETRY the autopilot may use carries a hover's
+/// velocity, and the estimate becomes usable within seconds, not never.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_daemon_started_45_s_into_the_hover_tells_the_autopilot_only_what_it_knows() {
+    let dir = scratch("late-start");
+    let mut scenario = ladar_odometer::sim::Scenario::builtin("hallway-hover").unwrap();
+    // 100 Hz keeps a debug build's fusion up with the real-time emulators.
+    if let Some(imu) = &mut scenario.imu {
+        imu.rate_hz = 100.0;
+    }
+    let text = ladar_odometer::daemon::simulate::rig_config(&scenario).unwrap();
+    let config = Config::parse(&text, Path::new("hallway-hover")).unwrap();
+    let scene = serve::SimulatedScene::starting_at(&scenario, 45.0).unwrap();
+    let emulators = TaskTracker::new();
+    let cancel_emulators = CancellationToken::new();
+    let served = serve::serve(
+        &config,
+        &ladar_odometer::daemon::simulate::emulated_models(&scenario),
+        Arc::new(Mutex::new(scene)),
+        &emulators,
+        cancel_emulators.clone(),
+    )
+    .await
+    .unwrap();
+    let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let autopilot_port = autopilot.local_addr().unwrap().port();
+    let received = Arc::new(Mutex::new(Vec::new()));
+    let receiver = tokio::spawn(receive_mavlink(autopilot, received.clone()));
+    let mut runnable = format!(
+        "{text}\n[mavlink]\nprofile = \"px4\"\nconnection = \"udpout:127.0.0.1:{autopilot_port}\"\n"
+    );
+    let sensors = config.scanners.iter().map(|s| &s.connection);
+    for (emulator, original) in served.iter().zip(sensors.chain([&config.imu.connection])) {
+        runnable = runnable.replace(
+            &format!("connection = \"{original}\""),
+            &format!("connection = \"{}\"", emulator.connection),
+        );
+    }
+    let run_path = dir.join("run.toml");
+    std::fs::write(&run_path, runnable).unwrap();
+    let cancel = CancellationToken::new();
+    let daemon = tokio::spawn(run::run(
+        RunOptions {
+            config: run_path,
+            record: Some(dir.join("live.mcap")),
+            out: None,
+        },
+        |config, _| FusionEstimator::new(Some(config)),
+        cancel.clone(),
+    ));
+    tokio::time::sleep(Duration::from_secs(20)).await;
+    cancel.cancel();
+    tokio::time::timeout(Duration::from_secs(10), daemon)
+        .await
+        .expect("shutdown is prompt")
+        .unwrap()
+        .unwrap();
+    cancel_emulators.cancel();
+    receiver.abort();
+
+    let messages = received.lock().unwrap();
+    let odometry: Vec<&ODOMETRY_DATA> = messages
+        .iter()
+        .filter_map(|m| match m {
+            MavMessage::ODOMETRY(o) => Some(o),
+            _ => None,
+        })
+        .collect();
+    let speed = |o: &ODOMETRY_DATA| (o.vx.powi(2) + o.vy.powi(2) + o.vz.powi(2)).sqrt();
+    let valid: Vec<_> = odometry.iter().filter(|o| o.quality >= 1).collect();
+    let fastest = valid.iter().map(|o| speed(o)).fold(0.0f32, f32::max);
+    assert!(
+        fastest < 0.3,
+        "a valid ODOMETRY said {fastest} m/s in a hover"
+    );
+    let end = odometry.last().map_or(0, |o| o.time_usec);
+    let last_10_s: Vec<_> = odometry
+        .iter()
+        .filter(|o| o.time_usec + 10_000_000 >= end)
+        .collect();
+    let usable = last_10_s.iter().filter(|o| o.quality >= 1).count();
+    assert!(
+        2 * usable >= last_10_s.len() && !last_10_s.is_empty(),
+        "{usable} of the last {} ODOMETRY usable",
+        last_10_s.len()
+    );
+}

@@ -95,9 +95,23 @@ impl Scene for StillRoom {
 pub struct SimulatedScene {
     simulator: crate::sim::Simulator,
     imu_to_body: nalgebra::UnitQuaternion<f64>,
+    /// Scenario time at the emulators' start, s.
+    start_s: f64,
 }
 
 impl SimulatedScene {
+    /// The scenario from `start_s` seconds on: a daemon connecting then starts in the middle
+    /// of it.
+    pub fn starting_at(
+        scenario: &crate::sim::Scenario,
+        start_s: f64,
+    ) -> Result<Self, crate::sim::ScenarioError> {
+        Ok(Self {
+            start_s,
+            ..Self::new(scenario)?
+        })
+    }
+
     pub fn new(scenario: &crate::sim::Scenario) -> Result<Self, crate::sim::ScenarioError> {
         let simulator = crate::sim::Simulator::new(scenario)?;
         let imu_to_body = simulator
@@ -108,6 +122,7 @@ impl SimulatedScene {
         Ok(Self {
             simulator,
             imu_to_body,
+            start_s: 0.0,
         })
     }
 }
@@ -119,7 +134,7 @@ impl Scene for SimulatedScene {
         if scanner >= self.simulator.scanners().len() {
             return ranges;
         }
-        let scan = self.simulator.scan(scanner, step0_s);
+        let scan = self.simulator.scan(scanner, self.start_s + step0_s);
         let offset = scan.first_step.saturating_sub(geometry.amin) as usize;
         for (slot, range) in ranges.iter_mut().skip(offset).zip(&scan.ranges_m) {
             *slot = (range * 1000.0).round().clamp(0.0, f64::from(u32::MAX)) as u32;
@@ -128,7 +143,7 @@ impl Scene for SimulatedScene {
     }
 
     fn imu(&mut self, t: f64) -> ([f64; 3], [f64; 3]) {
-        let k = self.simulator.kinematics_at(t);
+        let k = self.simulator.kinematics_at(self.start_s + t);
         let body_to_imu = self.imu_to_body.inverse();
         (
             (body_to_imu * k.specific_force_body).into(),
@@ -176,6 +191,8 @@ pub enum Source<'a> {
     /// `host:port+i` (Ethernet UST/UTM style) instead of a pty.
     Scenario {
         name: &'a str,
+        /// Scenario time at which the emulators begin, s.
+        start_s: f64,
         scanner_tcp: Option<(&'a str, u16)>,
     },
 }
@@ -194,7 +211,11 @@ pub async fn serve_until_cancelled(
                 let scene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
                 (default_models(&config), config, text, scene)
             }
-            Source::Scenario { name, scanner_tcp } => {
+            Source::Scenario {
+                name,
+                start_s,
+                scanner_tcp,
+            } => {
                 let scenario = crate::sim::Scenario::resolve(name)?;
                 let mut text = super::simulate::rig_config(&scenario)?;
                 if let Some((host, port)) = scanner_tcp {
@@ -208,7 +229,7 @@ pub async fn serve_until_cancelled(
                 }
                 let config = Config::parse(&text, Path::new(name))?;
                 let models = super::simulate::emulated_models(&scenario);
-                let scene = Arc::new(Mutex::new(SimulatedScene::new(&scenario)?));
+                let scene = Arc::new(Mutex::new(SimulatedScene::starting_at(&scenario, start_s)?));
                 (models, config, text, scene)
             }
         };

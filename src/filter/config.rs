@@ -125,7 +125,8 @@ pub struct FilterConfig {
     pub converged_after_epochs: u32,
     /// A speed above this (m/s) is taken as a diverged filter, which then restarts: set it
     /// above the platform's top speed. A velocity no surface observes runs off, honestly
-    /// uncertain, until it gets here.
+    /// uncertain, until it gets here; the default keeps what it moves the position between two
+    /// 30 Hz messages below 0.2 m, which an autopilot would otherwise take for a jump.
     pub max_speed_mps: f64,
     /// Fused relative poses over which the divergence guard sums the NIS.
     pub divergence_window: u32,
@@ -178,7 +179,7 @@ impl Default for FilterConfig {
             moving_start_sigma_tilt_deg: 3.0,
             moving_start_sigma_gyro_bias: 0.3 * DEG,
             converged_after_epochs: 3,
-            max_speed_mps: 15.0,
+            max_speed_mps: 6.0,
             divergence_window: 10,
             divergence_refused_in_row: 5,
             max_position_step_m: 0.1,

@@ -1,0 +1,402 @@
+//! What the autopilot is told, judged against truth: the ODOMETRY stream (body velocity, its
+//! covariance, quality and reset counter) the fusion sends at 30 Hz, on runs that start in
+//! motion, lose their sensors, or fly where the surfaces leave an axis unobserved
+//! (docs/autopilot.md). The short runs are real tests; the 20-run studies are `#[ignore]`d,
+//! release-mode runs: `cargo test --release --test honest_velocity -- --ignored --nocapture`.
+
+use ladar_odometer::daemon::mavlink_out::QualityPolicy;
+use ladar_odometer::fusion::evaluate::scanner_setups;
+use ladar_odometer::fusion::{Fusion, FusionSettings};
+use ladar_odometer::sim::{Scenario, SimEvent, Simulator};
+use nalgebra::Vector3;
+
+const MESSAGE_RATE_HZ: f64 = 30.0;
+
+/// Share of valid messages that must lie within 3 reported sigmas, per body axis.
+const INSIDE_3_SIGMA: f64 = 0.97;
+/// Largest mean normalised error squared per body axis (1 if honest).
+const MEAN_NEES: f64 = 1.5;
+/// Largest step of the reported position between messages without a reset, beyond what the
+/// reported velocity explains, m.
+const STEP_M: f64 = 0.2;
+
+/// Sensors silent over `[from_s, to_s)`: the scanners, or everything (an emulator killed).
+#[derive(Debug, Clone, Copy)]
+struct Outage {
+    from_s: f64,
+    to_s: f64,
+    imu_too: bool,
+}
+
+impl Outage {
+    fn silences(&self, t: f64, imu: bool) -> bool {
+        (self.from_s..self.to_s).contains(&t) && (self.imu_too || !imu)
+    }
+}
+
+#[derive(Debug, Clone)]
+struct Trial {
+    scenario: Scenario,
+    seed: u64,
+    /// Nothing before this time reaches the fusion: the daemon starts here.
+    start_s: f64,
+    outage: Option<Outage>,
+}
+
+impl Trial {
+    fn new(name: &str, seed: u64, start_s: f64) -> Self {
+        Self {
+            scenario: Scenario::builtin(name).unwrap(),
+            seed,
+            start_s,
+            outage: None,
+        }
+    }
+
+    fn until(mut self, end_s: f64) -> Self {
+        self.scenario.duration_s = end_s;
+        self
+    }
+}
+
+/// One ODOMETRY message as the autopilot reads it, with the truth beside it.
+#[derive(Debug, Clone, Copy)]
+struct Message {
+    t: f64,
+    quality: i8,
+    reset_counter: u8,
+    /// Body-frame velocity error, m/s.
+    error: Vector3<f64>,
+    /// Reported body-frame velocity sigmas, m/s.
+    sigma: Vector3<f64>,
+    position: Vector3<f64>,
+    /// Reported NED velocity, m/s.
+    velocity: Vector3<f64>,
+}
+
+impl Message {
+    fn valid(&self) -> bool {
+        self.quality >= 1
+    }
+
+    fn normalised(&self) -> Vector3<f64> {
+        self.error.component_div(&self.sigma)
+    }
+}
+
+/// The simulator through the fusion with the daemon's defaults (as `simulate` writes the rig's
+/// configuration), with the quality the PX4 profile sends.
+fn fly(trial: &Trial) -> Vec<Message> {
+    let mut simulator = Simulator::with_seed(&trial.scenario, trial.seed).unwrap();
+    let mut settings = FusionSettings::default();
+    settings.odometry.accept_parallel_lines = true;
+    settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
+    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let policy = QualityPolicy::default();
+    let trajectory = trial.scenario.trajectory.clone();
+    let silenced = |t: f64, imu: bool| trial.outage.is_some_and(|o| o.silences(t, imu));
+    let mut next_message = trial.start_s;
+    let mut messages = Vec::new();
+    while let Some(event) = simulator.next_event() {
+        let t = event.time();
+        if t < trial.start_s {
+            continue;
+        }
+        match event {
+            SimEvent::Imu(sample) if !silenced(t, true) => {
+                let Some(estimate) = fusion.push_imu(sample) else {
+                    continue;
+                };
+                if estimate.t < next_message {
+                    continue;
+                }
+                next_message += 1.0 / MESSAGE_RATE_HZ;
+                let truth = trajectory.kinematics(estimate.t);
+                messages.push(Message {
+                    t: estimate.t,
+                    quality: policy.quality(&estimate),
+                    reset_counter: estimate.reset_counter,
+                    error: estimate.body_velocity() - truth.q.inverse_transform_vector(&truth.v),
+                    sigma: estimate
+                        .body_velocity_covariance()
+                        .diagonal()
+                        .map(f64::sqrt),
+                    position: estimate.position,
+                    velocity: estimate.velocity,
+                });
+            }
+            SimEvent::Scan { scan, .. } if !silenced(t, false) => {
+                fusion.push_scan(scan);
+            }
+            _ => {}
+        }
+    }
+    messages
+}
+
+/// The autopilot's view of one or more runs.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+struct Verdict {
+    messages: usize,
+    valid: usize,
+    /// Per body axis, among valid messages: the share within 3 reported sigmas.
+    inside_3_sigma: [f64; 3],
+    /// Per body axis, among valid messages: the mean normalised error squared.
+    mean_nees: [f64; 3],
+    worst_valid_error_mps: f64,
+    /// Largest position step between consecutive messages with the same reset counter that the
+    /// reported velocity does not explain, m: a jump the autopilot would fuse as motion.
+    largest_step_m: f64,
+    resets: usize,
+}
+
+impl Verdict {
+    fn of(messages: &[Message]) -> Self {
+        let valid: Vec<&Message> = messages.iter().filter(|m| m.valid()).collect();
+        let n = valid.len().max(1) as f64;
+        let per_axis = |f: &dyn Fn(f64) -> f64| -> [f64; 3] {
+            std::array::from_fn(|axis| {
+                valid.iter().map(|m| f(m.normalised()[axis])).sum::<f64>() / n
+            })
+        };
+        let same_frame = messages
+            .windows(2)
+            .filter(|pair| pair[0].reset_counter == pair[1].reset_counter);
+        Self {
+            messages: messages.len(),
+            valid: valid.len(),
+            inside_3_sigma: per_axis(&|z| f64::from(u8::from(z.abs() <= 3.0))),
+            mean_nees: per_axis(&|z| z * z),
+            worst_valid_error_mps: valid.iter().map(|m| m.error.amax()).fold(0.0, f64::max),
+            largest_step_m: same_frame.map(unexplained_step).fold(0.0, f64::max),
+            resets: messages
+                .windows(2)
+                .filter(|pair| pair[0].reset_counter != pair[1].reset_counter)
+                .count(),
+        }
+    }
+
+    /// All the runs' valid messages together.
+    fn pooled(runs: &[Vec<Message>]) -> Self {
+        let all: Vec<Message> = runs.iter().flatten().copied().collect();
+        let largest_step_m = runs
+            .iter()
+            .map(|r| Self::of(r).largest_step_m)
+            .fold(0.0, f64::max);
+        Self {
+            largest_step_m,
+            resets: runs.iter().map(|r| Self::of(r).resets).sum(),
+            ..Self::of(&all)
+        }
+    }
+
+    fn assert_honest(&self, label: &str) {
+        for axis in 0..3 {
+            assert!(
+                self.inside_3_sigma[axis] >= INSIDE_3_SIGMA,
+                "{label}: axis {axis} only {:.3} inside 3 sigma: {self:?}",
+                self.inside_3_sigma[axis]
+            );
+            assert!(
+                self.mean_nees[axis] <= MEAN_NEES,
+                "{label}: axis {axis} mean NEES {:.2}: {self:?}",
+                self.mean_nees[axis]
+            );
+        }
+        assert!(
+            self.largest_step_m <= STEP_M,
+            "{label}: a {:.2} m step without a reset: {self:?}",
+            self.largest_step_m
+        );
+    }
+}
+
+/// How far the position moved between two messages beyond what their velocities carried it.
+fn unexplained_step(pair: &[Message]) -> f64 {
+    let travelled = (pair[0].velocity + pair[1].velocity) * 0.5 * (pair[1].t - pair[0].t);
+    (pair[1].position - pair[0].position - travelled).norm()
+}
+
+/// Seconds from the start (or from `after_s`) to the first valid message.
+fn first_valid_after(messages: &[Message], after_s: f64) -> Option<f64> {
+    messages
+        .iter()
+        .find(|m| m.t >= after_s && m.valid())
+        .map(|m| m.t - after_s)
+}
+
+/// Runs the trials over the machine's cores, in order.
+fn fly_all(trials: &[Trial]) -> Vec<Vec<Message>> {
+    let workers = std::thread::available_parallelism().map_or(1, usize::from);
+    let per_worker = trials.len().div_ceil(workers).max(1);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = trials
+            .chunks(per_worker)
+            .map(|chunk| scope.spawn(move || chunk.iter().map(fly).collect::<Vec<_>>()))
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap())
+            .collect()
+    })
+}
+
+/// `runs` trials of `name`, seeds 100 on, each starting at a different point of the first
+/// `window_s` seconds (golden-ratio spread) and lasting `length_s`.
+fn starts_in_motion(name: &str, runs: u64, window_s: f64, length_s: f64) -> Vec<Trial> {
+    (0..runs)
+        .map(|k| {
+            let start_s = (k as f64 * 0.618_034).fract() * window_s;
+            Trial::new(name, 100 + k, start_s).until(start_s + length_s)
+        })
+        .collect()
+}
+
+#[test]
+fn a_bare_corridor_never_tells_the_autopilot_a_wrong_velocity_is_good() {
+    let trials: Vec<Trial> = (0..4)
+        .map(|k| Trial::new("bare-corridor", 100 + k, 0.0).until(120.0))
+        .collect();
+    let runs = fly_all(&trials);
+    let verdict = Verdict::pooled(&runs);
+    println!(
+        "bare-corridor, 4 runs: {}",
+        serde_json::to_string(&verdict).unwrap()
+    );
+    assert!(verdict.valid > 0, "never usable: {verdict:?}");
+    verdict.assert_honest("bare-corridor");
+}
+
+#[test]
+fn a_flight_started_in_its_hover_is_usable_within_10_s_and_honest() {
+    let trials = starts_in_motion("hallway-flight", 4, 9.0, 20.0);
+    let runs = fly_all(&trials);
+    for (trial, run) in trials.iter().zip(&runs) {
+        let first = first_valid_after(run, trial.start_s);
+        assert!(
+            first.is_some_and(|s| s <= 10.0),
+            "started at {:.1} s: first valid {first:?}",
+            trial.start_s
+        );
+    }
+    Verdict::pooled(&runs).assert_honest("hallway-flight, started in motion");
+}
+
+#[test]
+fn after_losing_every_sensor_for_5_s_it_is_usable_within_10_s_and_never_wrong() {
+    let mut trial = Trial::new("hallway-hover", 3, 0.0).until(90.0);
+    trial.outage = Some(Outage {
+        from_s: 60.0,
+        to_s: 65.0,
+        imu_too: true,
+    });
+    let run = fly(&trial);
+    let after = first_valid_after(&run, 65.0);
+    assert!(
+        after.is_some_and(|s| s <= 10.0),
+        "first valid after the outage: {after:?}"
+    );
+    let during = run
+        .iter()
+        .filter(|m| (60.0..65.0).contains(&m.t) && m.valid())
+        .count();
+    assert_eq!(
+        during, 0,
+        "nothing usable is sent while the sensors are away"
+    );
+    Verdict::of(&run).assert_honest("hallway-hover with an outage");
+    assert!(
+        Verdict::of(&run).resets >= 1,
+        "the realignment re-anchors the autopilot"
+    );
+}
+
+fn study(label: &str, trials: &[Trial]) -> (Verdict, Vec<Option<f64>>) {
+    let runs = fly_all(trials);
+    let verdict = Verdict::pooled(&runs);
+    let first: Vec<Option<f64>> = trials
+        .iter()
+        .zip(&runs)
+        .map(|(trial, run)| first_valid_after(run, trial.start_s))
+        .collect();
+    println!(
+        "{label}: {} first valid {:?}",
+        serde_json::to_string(&verdict).unwrap(),
+        first
+    );
+    (verdict, first)
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_bare_corridor_20_runs() {
+    let trials: Vec<Trial> = (0..20)
+        .map(|k| Trial::new("bare-corridor", 100 + k, 0.0))
+        .collect();
+    study("bare-corridor, 20 runs", &trials)
+        .0
+        .assert_honest("bare-corridor");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_bare_corridor_started_in_motion_20_runs() {
+    let trials = starts_in_motion("bare-corridor", 20, 230.0, 30.0);
+    study("bare-corridor started in motion, 20 runs", &trials)
+        .0
+        .assert_honest("bare-corridor started in motion");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_flight_started_in_motion_20_runs() {
+    let trials = starts_in_motion("hallway-flight", 20, 33.0, 10.0);
+    study("hallway-flight started in motion, 20 runs", &trials)
+        .0
+        .assert_honest("hallway-flight started in motion");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_hover_started_in_motion_20_runs() {
+    let trials = starts_in_motion("hallway-hover", 20, 400.0, 60.0);
+    let (verdict, first) = study("hallway-hover started in motion, 20 runs", &trials);
+    verdict.assert_honest("hallway-hover started in motion");
+    assert!(
+        first.iter().all(|s| s.is_some_and(|s| s <= 10.0)),
+        "{first:?}"
+    );
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_outages_in_flight_20_runs() {
+    let trials: Vec<Trial> = (0..20)
+        .map(|k| {
+            let from_s = 45.0 + 10.0 * (k as f64 * 0.618_034).fract();
+            let mut trial = Trial::new("hallway-hover", 100 + k, 0.0).until(from_s + 40.0);
+            trial.outage = Some(Outage {
+                from_s,
+                to_s: from_s + 2.0 + 8.0 * (k as f64 * 0.414_214).fract(),
+                imu_too: k % 2 == 0,
+            });
+            trial
+        })
+        .collect();
+    let runs = fly_all(&trials);
+    let after: Vec<Option<f64>> = trials
+        .iter()
+        .zip(&runs)
+        .map(|(trial, run)| first_valid_after(run, trial.outage.unwrap().to_s))
+        .collect();
+    let verdict = Verdict::pooled(&runs);
+    println!(
+        "hallway-hover with 2-10 s outages, 20 runs: {} valid again after {after:?}",
+        serde_json::to_string(&verdict).unwrap()
+    );
+    verdict.assert_honest("outages");
+    assert!(
+        after.iter().all(|s| s.is_some_and(|s| s <= 10.0)),
+        "{after:?}"
+    );
+}
