@@ -53,6 +53,35 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
     }
 }
 
+/// `replay --start 30 --duration 30`: the fusion starts while the rig hovers, as a daemon
+/// restarted in flight would. It is usable within 10 s, honest in body axes, and the summary
+/// leaves out the NED comparison, whose origin and north are not the recording's.
+#[test]
+fn a_replay_started_in_the_hover_is_usable_within_10_s_and_honest() {
+    let options = ReplayOptions {
+        recording: Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING),
+        start_s: 30.0,
+        duration_s: Some(30.0),
+        ..ReplayOptions::default()
+    };
+    let (summary, _) = replay::replay(&options, |config, _| FusionEstimator::new(config)).unwrap();
+    println!("{summary}");
+    assert!(summary.truth.is_none(), "{summary}");
+    assert!(
+        (summary.duration_s - 60.0).abs() < 0.5,
+        "read up to 60 s: {summary}"
+    );
+    let view = summary.autopilot.expect("the recording carries /truth");
+    assert!(
+        view.first_valid_after_s.is_some_and(|s| s <= 10.0),
+        "{summary}"
+    );
+    for axis in 0..3 {
+        assert!(view.inside_3_sigma[axis] >= 0.97, "{summary}");
+        assert!(view.mean_nees[axis] <= 1.5, "{summary}");
+    }
+}
+
 /// Replay is how a flight is examined afterwards, so the real fusion must give the same bytes
 /// every time: estimates, epochs and MAVLink frames.
 #[test]

@@ -841,6 +841,64 @@ mod tests {
         assert_eq!(heartbeats, 2);
     }
 
+    #[test]
+    fn a_reset_sends_one_statustext_and_the_heartbeat_follows_the_estimate() {
+        let mut stream = MavlinkStream::new(Profile::Px4, 30.0, QualityPolicy::default());
+        let heartbeat_state = |stream: &mut MavlinkStream, now: f64| match stream.heartbeat_due(now)
+        {
+            Some(MavMessage::HEARTBEAT(h)) => h.system_status,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            heartbeat_state(&mut stream, 0.0),
+            MavState::MAV_STATE_CALIBRATING,
+            "no estimate yet"
+        );
+        stream.on_estimate(0.5, &at(0.5));
+        assert_eq!(stream.take_statustext(), None);
+        assert_eq!(
+            heartbeat_state(&mut stream, 1.0),
+            MavState::MAV_STATE_ACTIVE
+        );
+        let mut restarted = at(1.5);
+        restarted.reset_counter = 1;
+        restarted.converged = false;
+        restarted.last_reset = Some(ResetReason::ImuGap { seconds: 3.0 });
+        stream.on_estimate(1.5, &restarted);
+        let Some(MavMessage::STATUSTEXT(text)) = stream.take_statustext() else {
+            panic!("no STATUSTEXT for the reset");
+        };
+        assert_eq!(text.severity, MavSeverity::MAV_SEVERITY_WARNING);
+        assert_eq!(
+            text.text.to_str().unwrap().trim_end_matches('\0'),
+            "LADAR odometry reset 1: IMU gap, realigning"
+        );
+        assert_eq!(stream.take_statustext(), None, "once");
+        assert_eq!(
+            heartbeat_state(&mut stream, 2.0),
+            MavState::MAV_STATE_CALIBRATING
+        );
+        restarted.degraded = true;
+        stream.on_estimate(2.5, &restarted);
+        assert_eq!(
+            heartbeat_state(&mut stream, 3.0),
+            MavState::MAV_STATE_CRITICAL
+        );
+    }
+
+    #[test]
+    fn a_statustext_is_cut_to_fifty_bytes_on_a_character_boundary() {
+        let MavMessage::STATUSTEXT(text) =
+            statustext(MavSeverity::MAV_SEVERITY_INFO, &"é".repeat(40))
+        else {
+            panic!()
+        };
+        assert_eq!(
+            text.text.to_str().unwrap().trim_end_matches('\0'),
+            "é".repeat(25)
+        );
+    }
+
     fn at(t: f64) -> Estimate {
         Estimate { t, ..estimate() }
     }

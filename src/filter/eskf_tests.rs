@@ -813,3 +813,96 @@ fn the_attitude_prior_maps_each_euler_angle_into_the_global_error() {
     let roll_only = euler_attitude_covariance(&level_pitched, &Vector3::new(1.0, 0.0, 0.0));
     assert!((roll_only[(2, 2)] - 0.17f64.sin().powi(2)).abs() < 1e-12);
 }
+
+#[test]
+fn an_impossible_speed_restarts_the_navigation_state_where_it_stands() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::identity(),
+    };
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    let mut samples = trajectory.imu_samples(0.01, 3.0, 100.0, false);
+    // An accelerometer stuck 4 m/s^2 forward: the estimate leaves any plausible speed.
+    for sample in &mut samples {
+        if let ImuSample::Rate { accel, .. } = sample {
+            accel.x += 4.0;
+        }
+    }
+    let outcomes: Vec<_> = samples.iter().map(|s| filter.push_imu(s)).collect();
+    let restarted = outcomes
+        .iter()
+        .position(|o| matches!(o, ImuOutcome::Reset(ResetReason::Diverged(_))));
+    assert!(restarted.is_some(), "no restart");
+    assert!(matches!(
+        filter.last_reset(),
+        Some(ResetReason::Diverged(
+            super::divergence::Divergence::ImpossibleSpeed { .. }
+        ))
+    ));
+    let estimate = filter.estimate();
+    assert!(estimate.reset_counter >= 1);
+    assert!(
+        !estimate.converged,
+        "a restarted estimate must converge again"
+    );
+    let sigmas = filter.sigmas();
+    assert!(sigmas[state::VEL] >= FilterConfig::default().moving_start_sigma_velocity_mps);
+}
+
+#[test]
+fn a_long_imu_gap_realigns_keeping_position_and_heading() {
+    let q = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7);
+    let trajectory = Stationary { q };
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(0.01, 1.0, 100.0, false),
+    );
+    let before = filter.estimate();
+    // Two seconds without IMU data: the attitude and velocity could have become anything.
+    feed(&mut filter, &trajectory.imu_samples(3.0, 4.5, 100.0, false));
+    assert!(matches!(
+        filter.last_reset(),
+        Some(ResetReason::ImuGap { seconds }) if seconds > 1.9
+    ));
+    assert_ne!(filter.phase(), FilterPhase::Aligning, "aligned again");
+    let after = filter.estimate();
+    assert_eq!(after.reset_counter, before.reset_counter + 1);
+    assert!((after.position - before.position).norm() < 1e-9);
+    let yaw = |e: &crate::estimate::Estimate| e.attitude.euler_angles().2;
+    assert!((yaw(&after) - yaw(&before)).abs() < 1e-9, "heading kept");
+}
+
+#[test]
+fn a_correction_that_moves_the_position_a_lot_comes_with_a_reset() {
+    let trajectory = Stationary {
+        q: UnitQuaternion::identity(),
+    };
+    let mut config = FilterConfig::default();
+    config.initial_sigma_position_m = 1.0;
+    let mut filter = start_at_truth(config, &trajectory, 0.0);
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(0.01, 0.5, 100.0, false),
+    );
+    filter.clone_pose().unwrap();
+    feed(
+        &mut filter,
+        &trajectory.imu_samples(0.51, 1.0, 100.0, false),
+    );
+    // The odometry says the body moved 0.4 m, which the filter's uncertain position allows.
+    let mut measurement = relative_pose_with_noise(
+        &trajectory,
+        0.5,
+        1.0,
+        [Vector3::zeros(), Vector3::new(0.4, 0.0, 0.0)],
+        [1e-8, 1e-6],
+    );
+    measurement.rotation = None;
+    let report = filter.update_relative_pose(&measurement).unwrap();
+    assert!(report.accepted);
+    assert_eq!(filter.estimate().reset_counter, 1);
+    assert!(matches!(
+        filter.last_reset(),
+        Some(ResetReason::PositionStep { metres }) if metres > 0.1
+    ));
+}
