@@ -877,8 +877,10 @@ fn a_correction_that_moves_the_position_a_lot_comes_with_a_reset() {
     let trajectory = Stationary {
         q: UnitQuaternion::identity(),
     };
-    let mut config = FilterConfig::default();
-    config.initial_sigma_position_m = 1.0;
+    let config = FilterConfig {
+        initial_sigma_position_m: 1.0,
+        ..FilterConfig::default()
+    };
     let mut filter = start_at_truth(config, &trajectory, 0.0);
     feed(
         &mut filter,
