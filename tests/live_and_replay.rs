@@ -403,6 +403,63 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
     assert_replay_output_exists(&dir.join("replay-out"));
 }
 
+/// Serves `config`'s sensors in `scene`, runs the daemon on them for `seconds` with the
+/// configuration `serve-emulators --write-config` would write (connections to the emulators,
+/// MAVLink to a receiver here, outputs in `dir/out`) and returns what the autopilot received.
+async fn run_against_emulators(
+    dir: &Path,
+    config: &Config,
+    text: &str,
+    models: &[scip::Model],
+    scene: SharedScene,
+    seconds: u64,
+) -> Vec<MavMessage> {
+    let emulators = TaskTracker::new();
+    let cancel_emulators = CancellationToken::new();
+    let served = serve::serve(config, models, scene, &emulators, cancel_emulators.clone())
+        .await
+        .unwrap();
+    let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    let autopilot_port = autopilot.local_addr().unwrap().port();
+    let received = Arc::new(Mutex::new(Vec::new()));
+    let receiver = tokio::spawn(receive_mavlink(autopilot, received.clone()));
+    let to_autopilot = format!("connection = \"udpout:127.0.0.1:{autopilot_port}\"");
+    let mut runnable = match &config.mavlink {
+        Some(m) => text.replace(&format!("connection = \"{}\"", m.connection), &to_autopilot),
+        None => format!("{text}\n[mavlink]\nprofile = \"px4\"\n{to_autopilot}\n"),
+    };
+    let sensors = config.scanners.iter().map(|s| &s.connection);
+    for (emulator, original) in served.iter().zip(sensors.chain([&config.imu.connection])) {
+        runnable = runnable.replace(
+            &format!("connection = \"{original}\""),
+            &format!("connection = \"{}\"", emulator.connection),
+        );
+    }
+    let run_path = dir.join("run.toml");
+    std::fs::write(&run_path, runnable).unwrap();
+    let cancel = CancellationToken::new();
+    let daemon = tokio::spawn(run::run(
+        RunOptions {
+            config: run_path,
+            record: Some(dir.join("live.mcap")),
+            out: Some(dir.join("out")),
+        },
+        |config, _| FusionEstimator::new(Some(config)),
+        cancel.clone(),
+    ));
+    tokio::time::sleep(Duration::from_secs(seconds)).await;
+    cancel.cancel();
+    tokio::time::timeout(Duration::from_secs(10), daemon)
+        .await
+        .expect("shutdown is prompt")
+        .unwrap()
+        .unwrap();
+    cancel_emulators.cancel();
+    receiver.abort();
+    let messages = received.lock().unwrap().clone();
+    messages
+}
+
 /// `run` with the real fusion on what `serve-emulators --config` serves for the two-scanner PX4
 /// example (issue situation 4): the still box room, the first scanner a 10 Hz URG-04LX whose
 /// pairs close 52-63 ms after their mid-scan reference time. Every solved epoch must reach the
@@ -414,62 +471,10 @@ async fn the_px4_example_standing_in_the_box_room_fuses_its_epochs_live() {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("config/examples/px4-two-utm30lx-usb.toml");
     let (config, text) = Config::load_with_text(&example).unwrap();
     let scene: SharedScene = Arc::new(Mutex::new(StillRoom::for_config(&config)));
-    let emulators = TaskTracker::new();
-    let cancel_emulators = CancellationToken::new();
     let models = serve::default_models(&config);
-    let served = serve::serve(
-        &config,
-        &models,
-        scene,
-        &emulators,
-        cancel_emulators.clone(),
-    )
-    .await
-    .unwrap();
-
-    // What `serve-emulators --write-config` writes, with MAVLink to a receiver here.
-    let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    let autopilot_port = autopilot.local_addr().unwrap().port();
-    let received = Arc::new(Mutex::new(Vec::new()));
-    let receiver = tokio::spawn(receive_mavlink(autopilot, received.clone()));
-    let mut runnable = text.replace(
-        &format!(
-            "connection = \"{}\"",
-            config.mavlink.as_ref().unwrap().connection
-        ),
-        &format!("connection = \"udpout:127.0.0.1:{autopilot_port}\""),
-    );
-    let sensors = config.scanners.iter().map(|s| &s.connection);
-    for (emulator, original) in served.iter().zip(sensors.chain([&config.imu.connection])) {
-        runnable = runnable.replace(
-            &format!("connection = \"{original}\""),
-            &format!("connection = \"{}\"", emulator.connection),
-        );
-    }
-    let run_path = dir.join("run.toml");
-    std::fs::write(&run_path, runnable).unwrap();
-    let out = dir.join("out");
-    let cancel = CancellationToken::new();
-    let daemon = tokio::spawn(run::run(
-        RunOptions {
-            config: run_path,
-            record: Some(dir.join("live.mcap")),
-            out: Some(out.clone()),
-        },
-        |config, _| FusionEstimator::new(Some(config)),
-        cancel.clone(),
-    ));
     // The filter aligns in the first second; epochs come at 1 Hz.
-    tokio::time::sleep(Duration::from_secs(7)).await;
-    cancel.cancel();
-    tokio::time::timeout(Duration::from_secs(10), daemon)
-        .await
-        .expect("shutdown is prompt")
-        .unwrap()
-        .unwrap();
-    cancel_emulators.cancel();
-    receiver.abort();
-
+    let messages = run_against_emulators(&dir, &config, &text, &models, scene, 7).await;
+    let out = dir.join("out");
     let epochs: Vec<serde_json::Value> = std::fs::read_to_string(out.join("epochs.jsonl"))
         .unwrap()
         .lines()
@@ -483,7 +488,6 @@ async fn the_px4_example_standing_in_the_box_room_fuses_its_epochs_live() {
     assert!(failed.is_empty(), "{failed:?}");
     let fused = epochs.iter().filter(|e| e["outcome"] == "fused").count();
     assert!(fused >= 3, "{fused} of {} epochs fused", epochs.len());
-    let messages = received.lock().unwrap();
     assert!(
         messages
             .iter()
@@ -566,62 +570,20 @@ fn assert_replay_output_exists(dir: &Path) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_daemon_started_45_s_into_the_hover_tells_the_autopilot_only_what_it_knows() {
     let dir = scratch("late-start");
-    let mut scenario = ladar_odometer::sim::Scenario::builtin("hallway-hover").unwrap();
-    // 100 Hz keeps a debug build's fusion up with the real-time emulators.
-    if let Some(imu) = &mut scenario.imu {
-        imu.rate_hz = 100.0;
-    }
+    let scenario = ladar_odometer::sim::Scenario::builtin("hallway-hover").unwrap();
     let text = ladar_odometer::daemon::simulate::rig_config(&scenario).unwrap();
     let config = Config::parse(&text, Path::new("hallway-hover")).unwrap();
     let scene = serve::SimulatedScene::starting_at(&scenario, 45.0).unwrap();
-    let emulators = TaskTracker::new();
-    let cancel_emulators = CancellationToken::new();
-    let served = serve::serve(
+    let models = ladar_odometer::daemon::simulate::emulated_models(&scenario);
+    let messages = run_against_emulators(
+        &dir,
         &config,
-        &ladar_odometer::daemon::simulate::emulated_models(&scenario),
+        &text,
+        &models,
         Arc::new(Mutex::new(scene)),
-        &emulators,
-        cancel_emulators.clone(),
+        20,
     )
-    .await
-    .unwrap();
-    let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
-    let autopilot_port = autopilot.local_addr().unwrap().port();
-    let received = Arc::new(Mutex::new(Vec::new()));
-    let receiver = tokio::spawn(receive_mavlink(autopilot, received.clone()));
-    let mut runnable = format!(
-        "{text}\n[mavlink]\nprofile = \"px4\"\nconnection = \"udpout:127.0.0.1:{autopilot_port}\"\n"
-    );
-    let sensors = config.scanners.iter().map(|s| &s.connection);
-    for (emulator, original) in served.iter().zip(sensors.chain([&config.imu.connection])) {
-        runnable = runnable.replace(
-            &format!("connection = \"{original}\""),
-            &format!("connection = \"{}\"", emulator.connection),
-        );
-    }
-    let run_path = dir.join("run.toml");
-    std::fs::write(&run_path, runnable).unwrap();
-    let cancel = CancellationToken::new();
-    let daemon = tokio::spawn(run::run(
-        RunOptions {
-            config: run_path,
-            record: Some(dir.join("live.mcap")),
-            out: None,
-        },
-        |config, _| FusionEstimator::new(Some(config)),
-        cancel.clone(),
-    ));
-    tokio::time::sleep(Duration::from_secs(20)).await;
-    cancel.cancel();
-    tokio::time::timeout(Duration::from_secs(10), daemon)
-        .await
-        .expect("shutdown is prompt")
-        .unwrap()
-        .unwrap();
-    cancel_emulators.cancel();
-    receiver.abort();
-
-    let messages = received.lock().unwrap();
+    .await;
     let odometry: Vec<&ODOMETRY_DATA> = messages
         .iter()
         .filter_map(|m| match m {
