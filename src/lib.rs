@@ -11,6 +11,7 @@ pub mod filter;
 pub mod fusion;
 pub mod integrity;
 pub mod odometry;
+pub mod report;
 pub mod sensors;
 pub mod sim;
 pub mod study;

@@ -55,6 +55,10 @@ enum Command {
         /// Replay only this many seconds from the start.
         #[arg(long, value_name = "S")]
         duration: Option<f64>,
+        /// Also draw report.html into the --out directory: errors against truth inside their
+        /// bounds, integrity tests, planes, epoch outcomes, a top view, what the autopilot saw.
+        #[arg(long, requires = "out")]
+        report: bool,
     },
     /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
     /// driver's emulator exactly as a live run records it, with /truth.
@@ -134,6 +138,7 @@ fn main() -> ExitCode {
             tolerant,
             start,
             duration,
+            report,
         } => replay_recording(
             recording,
             out,
@@ -144,6 +149,7 @@ fn main() -> ExitCode {
             },
             mavlink,
             tolerant,
+            report,
         ),
         Command::Simulate { scenario, out } => simulate(&scenario, &out),
         Command::IntegrityCheck {
@@ -256,6 +262,7 @@ fn replay_recording(
     window: ReplayWindow,
     mavlink: Option<String>,
     tolerant: bool,
+    report: bool,
 ) -> Result<(), String> {
     let seconds = |value: f64, what: &str| {
         if value.is_finite() && value >= 0.0 {
@@ -278,6 +285,7 @@ fn replay_recording(
             .duration
             .map(|d| seconds(d, "duration"))
             .transpose()?,
+        report,
     };
     let (summary, _) = replay::replay(&options, |config, _| FusionEstimator::new(config))
         .map_err(|e| e.to_string())?;

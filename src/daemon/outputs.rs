@@ -3,6 +3,8 @@
 //! first write error, which would otherwise be lost in a drop.
 
 use crate::estimate::Estimate;
+use crate::sensors::TruthSample;
+use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
@@ -11,6 +13,10 @@ use std::path::{Path, PathBuf};
 pub const TRAJECTORY_FILE: &str = "trajectory.tum";
 pub const EPOCHS_FILE: &str = "epochs.jsonl";
 pub const TLOG_FILE: &str = "mavlink.tlog";
+/// Written by `replay --out` when the recording carries `/truth`.
+pub const TRUTH_FILE: &str = "truth.tum";
+/// Drawn by `replay --report` beside the other three.
+pub const REPORT_FILE: &str = "report.html";
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -62,12 +68,26 @@ impl NamedWriter {
 
 /// One TUM line: `t x y z qx qy qz qw`, position NED, attitude body->NED.
 pub fn tum_line(estimate: &Estimate) -> String {
-    let p = estimate.position;
-    let q = estimate.attitude.quaternion();
+    tum_record(estimate.t, &estimate.position, &estimate.attitude)
+}
+
+fn tum_record(t: f64, p: &Vector3<f64>, attitude: &UnitQuaternion<f64>) -> String {
+    let q = attitude.quaternion();
     format!(
         "{:.6} {:.6} {:.6} {:.6} {:.9} {:.9} {:.9} {:.9}\n",
-        estimate.t, p.x, p.y, p.z, q.i, q.j, q.k, q.w
+        t, p.x, p.y, p.z, q.i, q.j, q.k, q.w
     )
+}
+
+/// `truth.tum` beside `trajectory.tum`, in the same format, for evo (`evo_ape tum truth.tum
+/// trajectory.tum --align`): the simulator's truth is in its scene's frame, which the alignment
+/// takes out.
+pub fn write_truth(dir: &Path, truth: &[TruthSample]) -> Result<(), OutputError> {
+    let mut file = NamedWriter::create(dir.join(TRUTH_FILE))?;
+    for sample in truth {
+        file.write_all(tum_record(sample.t, &sample.p, &sample.q).as_bytes())?;
+    }
+    file.flush()
 }
 
 /// `mavlink.tlog` framing: each message behind the big-endian microseconds of its send time.
@@ -141,7 +161,7 @@ mod tests {
     use mavlink::dialects::ardupilotmega::MavMessage;
     use mavlink::dialects::ardupilotmega::MavState;
     use mavlink::{MavHeader, MavlinkReader, MavlinkVersion};
-    use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+    use nalgebra::Matrix3;
 
     fn estimate(t: f64) -> Estimate {
         Estimate {

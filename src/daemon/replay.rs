@@ -5,7 +5,7 @@
 use super::config::Config;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
-use super::outputs::{OutputError, Outputs};
+use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
@@ -13,6 +13,8 @@ use super::recording::{
 use super::truth::{autopilot_view, truth_errors, AutopilotView, TruthErrors};
 use crate::estimate::Estimate;
 use crate::fusion::sources::{DecodeCounts, SensorSetup};
+use crate::report::chart::ChartError;
+use crate::report::RunReport;
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::MAVLinkV2MessageRaw;
@@ -45,6 +47,8 @@ pub struct ReplayOptions {
     pub start_s: f64,
     /// Seconds replayed from `start_s` on; `None` to the end.
     pub duration_s: Option<f64>,
+    /// Also draw `report.html` into `out`.
+    pub report: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -63,6 +67,10 @@ pub enum ReplayError {
     Mavlink(#[from] LinkError),
     #[error("cannot start the MAVLink runtime: {0}")]
     Runtime(std::io::Error),
+    #[error("replay --report needs --out DIR to write report.html into")]
+    ReportWithoutOut,
+    #[error(transparent)]
+    Report(#[from] ChartError),
 }
 
 #[derive(Debug, Clone, PartialEq)]
@@ -178,6 +186,9 @@ pub fn replay<E: Estimator>(
     make_estimator: impl FnOnce(Option<&Config>, &[SensorSpec]) -> E,
 ) -> Result<(ReplaySummary, E), ReplayError> {
     let path = options.recording.as_path();
+    if options.report && options.out.is_none() {
+        return Err(ReplayError::ReportWithoutOut);
+    }
     let mode = if options.tolerant {
         ReadMode::Tolerant
     } else {
@@ -214,7 +225,10 @@ pub fn replay<E: Estimator>(
     let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
     let progress = progress_bar(options.progress, reader.position().1);
-    let mut tally = Tally::default();
+    let mut tally = Tally {
+        epoch_lines: options.report.then(Vec::new),
+        ..Tally::default()
+    };
     let started = Instant::now();
     let mut next = first;
     while let Some(message) = next {
@@ -262,6 +276,9 @@ pub fn replay<E: Estimator>(
         outputs.finish()?;
     }
     let truth = reader.take_truth();
+    if let (Some(dir), false) = (&options.out, truth.is_empty()) {
+        write_truth(dir, &truth)?;
+    }
     let stationary_start_s = config
         .as_ref()
         .map(Config::fusion_settings)
@@ -293,7 +310,28 @@ pub fn replay<E: Estimator>(
         autopilot: autopilot_view(&tally.kept, &truth, &mavlink.stream.policy()),
         loss: reader.loss().cloned(),
     };
+    if let (true, Some(dir)) = (options.report, &options.out) {
+        let report = RunReport {
+            title: &path.display().to_string(),
+            estimates: &tally.kept,
+            truth: &truth,
+            epochs: tally.epoch_lines.as_deref().unwrap_or_default(),
+            policy: &mavlink.stream.policy(),
+            summary: &summary,
+            shares_truth_frame: options.start_s == 0.0,
+        };
+        write_report(&dir.join(REPORT_FILE), &report.render()?)?;
+    }
     Ok((summary, pipeline.into_estimator().inner))
+}
+
+fn write_report(path: &std::path::Path, html: &str) -> Result<(), ReplayError> {
+    std::fs::write(path, html).map_err(|source| {
+        ReplayError::Output(OutputError::Write {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
 }
 
 /// Holds back the IMU samples and scans before `from_s` (host time), so that a replay can
@@ -383,6 +421,8 @@ struct Tally {
     detections: u64,
     exclusions: u64,
     kept: Vec<Estimate>,
+    /// The epochs as `epochs.jsonl` holds them, when a report will be drawn.
+    epoch_lines: Option<Vec<serde_json::Value>>,
 }
 
 impl Tally {
@@ -448,6 +488,14 @@ impl Tally {
                 self.planes += counts.planes as u64;
                 self.detections += u64::from(counts.detected);
                 self.exclusions += counts.excluded as u64;
+                if let Some(lines) = &mut self.epoch_lines {
+                    lines.push(serde_json::to_value(&epoch).map_err(|source| {
+                        OutputError::Serialise {
+                            path: REPORT_FILE.into(),
+                            source,
+                        }
+                    })?);
+                }
                 if let Some(outputs) = outputs {
                     outputs.epoch(&epoch)?;
                 }

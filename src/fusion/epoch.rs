@@ -5,7 +5,7 @@
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 use super::anchor::Anchored;
-use super::record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
+use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, WithCovariance};
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
@@ -377,6 +377,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         lines: planes.lines,
         planes_per_scanner: [on_scanner(0), on_scanner(1)],
         planes: planes.planes.len(),
+        plane_geometry: planes.planes.iter().map(PlaneGeometry::from).collect(),
         matched: 0,
         used: 0,
         excluded_planes: Vec::new(),

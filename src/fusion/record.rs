@@ -8,6 +8,7 @@ use crate::estimate::IntegrityStatus;
 use crate::filter::UpdateReport;
 use crate::integrity::EpochReport;
 use crate::odometry::deskew::DroppedReadings;
+use crate::odometry::planes::Plane;
 
 /// How an epoch ended.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -65,6 +66,22 @@ impl From<&UpdateReport> for UpdateSummary {
     }
 }
 
+/// A plane as `normal . p = rho` in its epoch's body axes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PlaneGeometry {
+    pub normal: [f64; 3],
+    pub rho: f64,
+}
+
+impl From<&Plane> for PlaneGeometry {
+    fn from(plane: &Plane) -> Self {
+        Self {
+            normal: plane.normal.into(),
+            rho: plane.rho,
+        }
+    }
+}
+
 /// One line of epochs.jsonl.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct EpochRecord {
@@ -83,6 +100,8 @@ pub struct EpochRecord {
     /// Planes built with a line of each scanner (a plane may count for both).
     pub planes_per_scanner: [usize; 2],
     pub planes: usize,
+    /// Each plane's unit normal (body i axes) and distance, by id: enough to draw the epoch.
+    pub plane_geometry: Vec<PlaneGeometry>,
     /// Plane pairs matched with the previous epoch.
     pub matched: usize,
     /// Matches in the fused solves (after exclusion).
