@@ -57,6 +57,10 @@ pub enum ReplayError {
     Config { path: PathBuf, errors: String },
     #[error("recording from an unknown sensor: {path} has bytes from `{sensor}`, which its configuration does not list (replay the file the recording came with, or fix its [[scanner]]/[imu] names)")]
     UnknownSensor { path: PathBuf, sensor: String },
+    #[error("replay --tolerant kept nothing of {path}: {loss} before any complete sensor message; if the file is cut, try `mcap recover` (Foxglove's mcap CLI), else record it again")]
+    NothingKept { path: PathBuf, loss: Loss },
+    #[error("recording {path} holds no sensor bytes to replay (expected /<sensor>/rx channels as `run --record` and `simulate` write)")]
+    Empty { path: PathBuf },
     #[error(transparent)]
     Output(#[from] OutputError),
     #[error("{0}")]
@@ -198,6 +202,13 @@ pub fn replay<E: Estimator>(
     // Without a configuration the sensors are whatever the file holds, in order of appearance.
     let discover = config.is_none();
     let first = reader.next_message()?;
+    if first.is_none() {
+        let path = path.to_path_buf();
+        return Err(match reader.loss().cloned() {
+            Some(loss) => ReplayError::NothingKept { path, loss },
+            None => ReplayError::Empty { path },
+        });
+    }
     if discover {
         if let Some(message) = &first {
             specs.push(spec_for(message, 0));
