@@ -289,6 +289,7 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
             unrecorded = report.unrecorded_chunks,
             "stopped"
         );
+        tracing::info!("epochs: {}", report.outcomes);
         for latency in [report.fused_latency, report.latency].into_iter().flatten() {
             tracing::info!("{latency}");
         }
@@ -328,7 +329,8 @@ fn replay_recording(
         realtime: window.realtime,
         mavlink,
         tolerant,
-        progress: true,
+        // A bar redrawn between log lines garbles both: who asks for logs gets them plain.
+        progress: std::env::var_os("RUST_LOG").is_none(),
         start_s: seconds(window.start, "start")?,
         duration_s: window
             .duration
@@ -364,7 +366,7 @@ fn integrity_check(
     false_alarm_probability: Option<f64>,
     missed_detection_probability: Option<f64>,
 ) -> Result<(), String> {
-    use ladar_odometer::study::{integrity_check, IntegrityCheckArgs};
+    use ladar_odometer::study::{integrity_check_with_progress, pairs_to_run, IntegrityCheckArgs};
     let mut args = IntegrityCheckArgs {
         scenario,
         runs,
@@ -379,7 +381,16 @@ fn integrity_check(
         args.integrity.missed_detection_probability = p;
     }
     args.integrity.validate().map_err(|e| e.to_string())?;
-    let report = integrity_check(&args).map_err(|e| e.to_string())?;
+    // The default draw target is stderr and draws nothing unless it is a terminal.
+    let bar = indicatif::ProgressBar::new(pairs_to_run(&args) as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} simulated pairs {elapsed_precise} eta {eta}",
+    ) {
+        bar.set_style(style);
+    }
+    let report = integrity_check_with_progress(&args, &mut |done, _| bar.set_position(done as u64))
+        .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
     println!("{}", report.render(json));
     Ok(())
 }

@@ -5,6 +5,7 @@
 use super::config::Config;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
+use super::outcomes::{OutcomeCounts, OutcomeWarnings};
 use super::outputs::{OutputError, Outputs};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
 use super::recording::{
@@ -80,6 +81,8 @@ pub struct ReplaySummary {
     pub planes: u64,
     pub detections: u64,
     pub exclusions: u64,
+    /// How the epochs ended.
+    pub outcomes: OutcomeCounts,
     pub truth: Option<TruthErrors>,
     pub autopilot: Option<AutopilotView>,
     pub loss: Option<Loss>,
@@ -109,6 +112,7 @@ impl fmt::Display for ReplaySummary {
             "  {} estimates, {} epochs, {per_epoch:.1} planes per epoch, {} detections, {} exclusions",
             self.estimates, self.epochs, self.detections, self.exclusions
         )?;
+        writeln!(f, "  epochs: {}", self.outcomes)?;
         match &self.truth {
             Some(t) => {
                 writeln!(
@@ -224,6 +228,12 @@ pub fn replay<E: Estimator>(
     let mut pipeline = Pipeline::new(specs, estimator);
     let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
+    tracing::info!(
+        recording = %path.display(),
+        format = ?reader.format(),
+        configuration = if config.is_some() { "recorded" } else { "none, sensors from the file" },
+        "replaying"
+    );
     let progress = progress_bar(options.progress, reader.position().1);
     let mut tally = Tally::default();
     let started = Instant::now();
@@ -250,6 +260,13 @@ pub fn replay<E: Estimator>(
             tally.pace(message.log_time_ns, started);
         }
         tally.chunk(&message);
+        tracing::trace!(
+            sensor = %message.sensor,
+            direction = message.direction.as_str(),
+            log_time_ns = message.log_time_ns,
+            bytes = message.data.len(),
+            "chunk"
+        );
         let chunk = Chunk {
             sensor,
             direction: message.direction,
@@ -300,6 +317,7 @@ pub fn replay<E: Estimator>(
         planes: tally.planes,
         detections: tally.detections,
         exclusions: tally.exclusions,
+        outcomes: tally.outcomes,
         truth: ned_truth,
         autopilot: autopilot_view(&tally.kept, &truth, &mavlink.stream.policy()),
         loss: reader.loss().cloned(),
@@ -393,6 +411,10 @@ struct Tally {
     planes: u64,
     detections: u64,
     exclusions: u64,
+    outcomes: OutcomeCounts,
+    warnings: OutcomeWarnings,
+    /// Log time of the chunk being replayed, s: the warnings' clock, as in `run`.
+    now_s: f64,
     kept: Vec<Estimate>,
 }
 
@@ -400,6 +422,7 @@ impl Tally {
     fn chunk(&mut self, message: &RecordedMessage) {
         self.chunks += 1;
         self.bytes += message.data.len() as u64;
+        self.now_s = message.log_time_ns as f64 * 1e-9;
         if message.log_time_ns != 0 {
             self.first_ns.get_or_insert(message.log_time_ns);
             self.last_ns = self.last_ns.max(message.log_time_ns);
@@ -459,6 +482,17 @@ impl Tally {
                 self.planes += counts.planes as u64;
                 self.detections += u64::from(counts.detected);
                 self.exclusions += counts.excluded as u64;
+                tracing::debug!(
+                    outcome = counts.outcome.describe(),
+                    planes = counts.planes,
+                    excluded = counts.excluded,
+                    failure = counts.failure.as_deref(),
+                    "epoch"
+                );
+                if let Some(warning) = self.warnings.observe(&counts, self.now_s) {
+                    tracing::warn!("{warning}");
+                }
+                self.outcomes.add(&counts);
                 if let Some(outputs) = outputs {
                     outputs.epoch(&epoch)?;
                 }
