@@ -9,7 +9,7 @@ use ladar_odometer::daemon::recording::{
 use ladar_odometer::daemon::replay::{self, ReplayError, ReplayOptions};
 use ladar_odometer::daemon::simulate::{self, HANDSHAKE_S};
 use ladar_odometer::sensors::{ImuSample, Scan};
-use ladar_odometer::sim::{Scenario, SimEvent, Simulator};
+use ladar_odometer::sim::{Scenario, SimEvent, Simulator, BUILTIN_NAMES};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
@@ -242,6 +242,37 @@ fn a_tolerant_replay_that_keeps_nothing_is_an_error_naming_the_file() {
         line.contains(&cut.display().to_string()) && line.contains("mcap recover"),
         "{line}"
     );
+}
+
+/// Every built-in can be recorded, replayed and served (serve-emulators writes the rig
+/// configuration `rig_config` gives): each has an IMU, and a trajectory it can follow.
+#[test]
+fn every_builtin_scenario_simulates_replays_and_has_a_rig_to_serve() {
+    for name in BUILTIN_NAMES {
+        let mut scenario = Scenario::builtin(name).unwrap();
+        scenario.duration_s = scenario.duration_s.min(3.0);
+        assert!(
+            simulate::rig_config(&scenario).is_ok(),
+            "{name} cannot be served"
+        );
+        let path = scratch(&format!("builtin-{name}.toml"));
+        std::fs::write(&path, scenario.to_toml().unwrap()).unwrap();
+        let out = scratch(&format!("builtin-{name}.mcap"));
+        let summary = simulate::simulate(path.to_str().unwrap(), &out)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(summary.imu_samples > 0 && summary.scans > 0, "{name}");
+        let options = ReplayOptions {
+            recording: out,
+            ..ReplayOptions::default()
+        };
+        let (_, trace) = replay::replay(&options, |_, _| EventTrace::default()).unwrap();
+        let imu = trace
+            .calls
+            .iter()
+            .filter(|c| matches!(c, Traced::Imu(_)))
+            .count();
+        assert_eq!(imu as u64, summary.imu_samples, "{name}");
+    }
 }
 
 #[test]
