@@ -91,9 +91,9 @@ where
     let (config, config_text) = Config::load_with_text(&options.config)?;
     let specs = sensor_specs(&config);
     let links = sensor_links(&config);
-    for link in &links {
-        sensor_task::check_port(&link.name, &link.connection).map_err(RunError::Port)?;
-    }
+    sensor_task::wait_for_ports(&links, sensor_task::DEVICE_WAIT, &cancel)
+        .await
+        .map_err(RunError::Port)?;
     let recording = recording_path(&config, options.record.clone());
     let recorder = match &recording {
         Some(path) => {
