@@ -84,6 +84,7 @@ fn render_500_s(bencher: divan::Bencher) {
         planes: 6 * epochs.len() as u64,
         detections: 0,
         exclusions: 0,
+        outcomes: Default::default(),
         truth: None,
         autopilot: None,
         loss: None,

@@ -1,12 +1,12 @@
 //! The `ladar-odometer` command line: thin, everything it does lives in `daemon`.
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::replay::{self, ReplayOptions};
 use ladar_odometer::daemon::run::{self, RunOptions};
 use ladar_odometer::daemon::serve;
 use std::io::IsTerminal;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use tokio_util::sync::CancellationToken;
 
@@ -24,7 +24,8 @@ struct Cli {
 enum Command {
     /// Run the daemon on the sensors of a configuration file.
     Run {
-        #[arg(long)]
+        /// The configuration (config/default.toml documents every key).
+        #[arg(long, value_name = "FILE")]
         config: PathBuf,
         /// Record every sensor byte to this MCAP file (overrides [recording] path).
         #[arg(long, value_name = "FILE.mcap")]
@@ -37,6 +38,7 @@ enum Command {
     Replay {
         /// Defaults to the bundled data/hallway-hover.mcap.
         recording: Option<PathBuf>,
+        /// Write trajectory.tum, epochs.jsonl and mavlink.tlog here.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
         /// Pace the replay at the recorded times.
@@ -63,8 +65,11 @@ enum Command {
     /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
     /// driver's emulator exactly as a live run records it, with /truth.
     Simulate {
+        /// A built-in scenario (paper-sim, office-door, hallway-hover, hallway-flight,
+        /// bare-corridor) or a scenario file like those in data/scenarios.
         #[arg(long, value_name = "NAME|FILE")]
         scenario: String,
+        /// The recording to write.
         #[arg(long, value_name = "FILE.mcap")]
         out: PathBuf,
     },
@@ -72,10 +77,13 @@ enum Command {
     /// predicted vs measured sigma per plane, false-alarm rate, detection rate against bias
     /// size, minimum detectable biases. This is how to choose thresholds for a mount.
     IntegrityCheck {
+        /// A built-in scenario or a scenario file (your rig's scanners and room).
         #[arg(long, value_name = "NAME|FILE", default_value = "paper-sim")]
         scenario: String,
+        /// Monte Carlo runs: more runs, narrower intervals, longer wait.
         #[arg(long, default_value_t = 1000)]
         runs: usize,
+        /// Seed of the first run; the same seed gives the same tables.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// Print JSON instead of tables.
@@ -114,6 +122,18 @@ enum Command {
         /// Write a configuration pointing at the emulators, for `run --config`.
         #[arg(long, value_name = "FILE")]
         write_config: Option<PathBuf>,
+    },
+    /// Print the shell completion script for SHELL, e.g.
+    /// `ladar-odometer completions bash > /etc/bash_completion.d/ladar-odometer`.
+    Completions {
+        /// The shell to complete in.
+        shell: clap_complete::Shell,
+    },
+    /// Write the man pages, ladar-odometer(1) and one per command, into DIR, e.g.
+    /// /usr/local/share/man/man1.
+    Manpage {
+        /// The directory for the pages, created if missing.
+        dir: PathBuf,
     },
 }
 
@@ -180,6 +200,12 @@ fn main() -> ExitCode {
             tcp_port.map(|p| (tcp_host, p)),
             write_config,
         ),
+        Command::Completions { shell } => completions(shell),
+        Command::Manpage { dir } => write_man_pages(&dir).map(|pages| {
+            for page in pages {
+                println!("{}", page.display());
+            }
+        }),
     };
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
@@ -188,6 +214,36 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// The script is built in memory first: a closed stdout is then an error, not a panic.
+fn completions(shell: clap_complete::Shell) -> Result<(), String> {
+    use std::io::Write;
+    let mut script = Vec::new();
+    clap_complete::generate(shell, &mut Cli::command(), "ladar-odometer", &mut script);
+    std::io::stdout()
+        .write_all(&script)
+        .map_err(|e| format!("cannot write the {shell} completions to stdout: {e}"))
+}
+
+/// Writes ladar-odometer.1 and ladar-odometer-COMMAND.1 into `dir`; returns their paths.
+fn write_man_pages(dir: &Path) -> Result<Vec<PathBuf>, String> {
+    let failed = |e: std::io::Error| {
+        format!(
+            "cannot write the man pages into {}: {e} (give a writable directory, or run with sudo)",
+            dir.display()
+        )
+    };
+    std::fs::create_dir_all(dir).map_err(failed)?;
+    let command = Cli::command();
+    let mut pages = vec![dir.join("ladar-odometer.1")];
+    pages.extend(
+        command
+            .get_subcommands()
+            .map(|sub| dir.join(format!("ladar-odometer-{}.1", sub.get_name()))),
+    );
+    clap_mangen::generate_to(command, dir).map_err(failed)?;
+    Ok(pages)
 }
 
 /// Journald-friendly: no colours unless on a terminal, level from RUST_LOG (default info).
@@ -239,6 +295,7 @@ fn run_daemon(options: RunOptions) -> Result<(), String> {
             unrecorded = report.unrecorded_chunks,
             "stopped"
         );
+        tracing::info!("epochs: {}", report.outcomes);
         for latency in [report.fused_latency, report.latency].into_iter().flatten() {
             tracing::info!("{latency}");
         }
@@ -279,7 +336,8 @@ fn replay_recording(
         realtime: window.realtime,
         mavlink,
         tolerant,
-        progress: true,
+        // A bar redrawn between log lines garbles both: who asks for logs gets them plain.
+        progress: std::env::var_os("RUST_LOG").is_none(),
         start_s: seconds(window.start, "start")?,
         duration_s: window
             .duration
@@ -316,7 +374,7 @@ fn integrity_check(
     false_alarm_probability: Option<f64>,
     missed_detection_probability: Option<f64>,
 ) -> Result<(), String> {
-    use ladar_odometer::study::{integrity_check, IntegrityCheckArgs};
+    use ladar_odometer::study::{integrity_check_with_progress, pairs_to_run, IntegrityCheckArgs};
     let mut args = IntegrityCheckArgs {
         scenario,
         runs,
@@ -331,7 +389,16 @@ fn integrity_check(
         args.integrity.missed_detection_probability = p;
     }
     args.integrity.validate().map_err(|e| e.to_string())?;
-    let report = integrity_check(&args).map_err(|e| e.to_string())?;
+    // The default draw target is stderr and draws nothing unless it is a terminal.
+    let bar = indicatif::ProgressBar::new(pairs_to_run(&args) as u64);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} simulated pairs {elapsed_precise} eta {eta}",
+    ) {
+        bar.set_style(style);
+    }
+    let report = integrity_check_with_progress(&args, &mut |done, _| bar.set_position(done as u64))
+        .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
     println!("{}", report.render(json));
     Ok(())
 }
@@ -365,4 +432,70 @@ fn serve_emulators(
             .await
             .map_err(|e| e.to_string())
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn subcommands() -> Vec<String> {
+        Cli::command()
+            .get_subcommands()
+            .map(|sub| sub.get_name().to_string())
+            .collect()
+    }
+
+    #[test]
+    fn every_option_and_argument_has_help() {
+        let command = Cli::command();
+        for sub in command.get_subcommands() {
+            assert!(sub.get_about().is_some(), "{} has no help", sub.get_name());
+            for arg in sub.get_arguments() {
+                let id = arg.get_id().as_str();
+                if id == "help" {
+                    continue;
+                }
+                assert!(
+                    arg.get_help().is_some(),
+                    "{} {id} has no --help text",
+                    sub.get_name()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn completions_know_every_command() {
+        for shell in [clap_complete::Shell::Bash, clap_complete::Shell::Zsh] {
+            let mut script = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "ladar-odometer", &mut script);
+            let script = String::from_utf8(script).unwrap();
+            for name in subcommands() {
+                assert!(script.contains(&name), "{shell}: no {name}");
+            }
+            assert!(script.contains("--tolerant"), "{shell}");
+        }
+    }
+
+    #[test]
+    fn man_pages_cover_every_command_and_its_options() {
+        let dir = std::env::temp_dir().join(format!("ladar-man-{}", std::process::id()));
+        let pages = write_man_pages(&dir).unwrap();
+        assert_eq!(pages.len(), 1 + subcommands().len());
+        let main = std::fs::read_to_string(&pages[0]).unwrap();
+        assert!(main.starts_with(".ie") || main.contains(".TH"), "{main}");
+        // roff escapes every hyphen.
+        let roff = |text: &str| text.replace('-', "\\-");
+        for name in subcommands() {
+            assert!(
+                main.contains(&roff(&name)),
+                "ladar-odometer.1 lists no {name}"
+            );
+            let page = dir.join(format!("ladar-odometer-{name}.1"));
+            assert!(page.exists(), "{}", page.display());
+        }
+        let replay = std::fs::read_to_string(dir.join("ladar-odometer-replay.1")).unwrap();
+        assert!(replay.contains("tolerant"), "{replay}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

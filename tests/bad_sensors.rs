@@ -127,7 +127,8 @@ async fn a_sensor_answering_garbage_is_counted_and_the_others_stream_on() {
     );
 }
 
-#[tokio::test]
+/// Paused time: the 20 s that run waits for a late USB device pass at once.
+#[tokio::test(start_paused = true)]
 async fn a_missing_serial_port_is_one_line_naming_the_sensor_and_the_fix() {
     let dir = scratch("missing");
     let path = dir.join("run.toml");

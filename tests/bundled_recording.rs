@@ -3,6 +3,7 @@
 //! the fusion reaches on that scenario. It is part of the repository, so it must exist.
 
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
+use ladar_odometer::daemon::pipeline::Outcome;
 use ladar_odometer::daemon::replay::{self, ReplayOptions, BUNDLED_RECORDING};
 use std::path::Path;
 
@@ -32,6 +33,15 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
     }
     // One epoch a second, every one after the first with planes from both scanners.
     assert!(summary.epochs >= 70, "{summary}");
+    assert_eq!(summary.outcomes.total(), summary.epochs, "{summary}");
+    assert!(
+        summary.outcomes.get(Outcome::Fused) >= 50,
+        "most epochs after the stationary start are fused: {summary}"
+    );
+    assert!(
+        summary.to_string().contains("\n  epochs: ") && summary.to_string().contains(" fused"),
+        "{summary}"
+    );
     assert!(
         summary.planes as f64 / summary.epochs as f64 >= 4.0,
         "{summary}"
@@ -107,4 +117,32 @@ fn replaying_twice_with_the_real_fusion_writes_the_same_bytes() {
         assert!(first.len() > 10_000);
         assert!(first == second, "the two replays differ");
     }
+}
+
+/// `replay` logs through RUST_LOG like `run`: what it replays at info, each epoch at debug.
+#[test]
+fn replay_honours_rust_log() {
+    let replay = |rust_log: Option<&str>| {
+        let mut command = std::process::Command::new(env!("CARGO_BIN_EXE_ladar-odometer"));
+        command
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(["replay", "--duration", "4"])
+            .env_remove("RUST_LOG");
+        if let Some(filter) = rust_log {
+            command.env("RUST_LOG", filter);
+        }
+        let output = command.output().unwrap();
+        assert!(output.status.success(), "{output:?}");
+        String::from_utf8(output.stderr).unwrap()
+    };
+    let debug = replay(Some("debug"));
+    assert!(debug.contains("replaying"), "{debug}");
+    assert!(debug.contains(" epoch "), "{debug}");
+    let quiet = replay(Some("warn"));
+    assert!(!quiet.contains("replaying"), "{quiet}");
+    let default = replay(None);
+    assert!(
+        default.contains("replaying") && !default.contains(" epoch "),
+        "{default}"
+    );
 }

@@ -94,3 +94,72 @@ fn every_example_loads_and_the_issue_rigs_are_there() {
         );
     }
 }
+
+/// The names systemd/99-ladar-odometer.rules gives: those of its rules, and those of the
+/// rules it shows commented out for the user to fill in with a serial number.
+fn udev_names() -> Vec<String> {
+    let rules = std::fs::read_to_string(repository("systemd/99-ladar-odometer.rules")).unwrap();
+    rules
+        .lines()
+        .map(|line| line.strip_prefix('#').unwrap_or(line))
+        .filter(|rule| rule.starts_with("SUBSYSTEM=="))
+        .filter_map(|rule| {
+            let name = rule.split("SYMLINK+=\"").nth(1)?;
+            Some(name[..name.find('"')?].to_string())
+        })
+        .collect()
+}
+
+/// A udev name matches the device it makes: `hokuyo%n` is hokuyo0, hokuyo1, ...
+fn udev_makes(name: &str, device: &str) -> bool {
+    match name.strip_suffix("%n") {
+        Some(stem) => device
+            .strip_prefix(stem)
+            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit())),
+        None => device == name,
+    }
+}
+
+/// Every sensor device a shipped configuration opens is one the udev rules name, so that
+/// copying a file and the rules gives a daemon that finds its sensors.
+#[test]
+fn every_sensor_device_in_the_configs_is_named_by_the_udev_rules() {
+    use ladar_odometer::daemon::config::SensorConnection;
+    let names = udev_names();
+    assert!(names.iter().any(|n| n == "xsens"), "{names:?}");
+    assert!(names.iter().any(|n| n == "hokuyo_front"), "{names:?}");
+    assert!(udev_makes("hokuyo%n", "hokuyo1") && !udev_makes("hokuyo%n", "hokuyo_utm"));
+    let mut files: Vec<PathBuf> = std::fs::read_dir(repository("config/examples"))
+        .unwrap()
+        .map(|entry| entry.unwrap().path())
+        .collect();
+    files.push(repository("config/default.toml"));
+    let key = key_file();
+    let mut checked = 0;
+    for file in &files {
+        let config = load(file, &key);
+        let connections = config
+            .scanners
+            .iter()
+            .map(|s| (s.name.clone(), s.connection()))
+            .chain([(config.imu.name.clone(), config.imu.connection())]);
+        for (sensor, connection) in connections {
+            let SensorConnection::Serial { path, .. } = connection else {
+                continue;
+            };
+            let device = path
+                .strip_prefix("/dev")
+                .unwrap_or_else(|_| panic!("{}: {sensor} is not under /dev", file.display()))
+                .to_string_lossy()
+                .into_owned();
+            assert!(
+                names.iter().any(|name| udev_makes(name, &device)),
+                "{}: sensor `{sensor}` opens {}, which no rule in systemd/99-ladar-odometer.rules names",
+                file.display(),
+                path.display()
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked >= 10, "{checked}");
+}

@@ -3,11 +3,13 @@
 //! estimators), the truth, and the rig's configuration; and a damaged copy must fail cleanly.
 
 use ladar_odometer::daemon::pipeline::{EventTrace, Traced};
-use ladar_odometer::daemon::recording::{ReadMode, Recording};
+use ladar_odometer::daemon::recording::{
+    ReadMode, Recording, CONFIG_METADATA_KEY, CONFIG_METADATA_NAME,
+};
 use ladar_odometer::daemon::replay::{self, ReplayError, ReplayOptions};
 use ladar_odometer::daemon::simulate::{self, HANDSHAKE_S};
 use ladar_odometer::sensors::{ImuSample, Scan};
-use ladar_odometer::sim::{Scenario, SimEvent, Simulator};
+use ladar_odometer::sim::{Scenario, SimEvent, Simulator, BUILTIN_NAMES};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
@@ -142,6 +144,135 @@ fn a_cut_simulation_is_refused_in_one_line_and_kept_when_tolerant() {
     .unwrap();
     assert!(summary.loss.is_some());
     assert!(!trace.calls.is_empty());
+}
+
+/// The recording as Python's `mcap` writer (zstd, its default) or an lz4 writer would have
+/// written it: the same channels, messages and configuration in compressed chunks.
+fn rewritten_compressed(recording: &Recording, compression: mcap::Compression) -> Vec<u8> {
+    use std::collections::{BTreeMap, HashMap};
+    let mut out = std::io::Cursor::new(Vec::new());
+    let mut writer = mcap::WriteOptions::new()
+        .compression(Some(compression))
+        .create(&mut out)
+        .unwrap();
+    let config = recording.config_toml.clone().expect("simulate records it");
+    writer
+        .write_metadata(&mcap::records::Metadata {
+            name: CONFIG_METADATA_NAME.into(),
+            metadata: BTreeMap::from([(CONFIG_METADATA_KEY.to_string(), config)]),
+        })
+        .unwrap();
+    let mut channels = HashMap::new();
+    for (sequence, message) in recording.messages.iter().enumerate() {
+        let topic = message.topic();
+        let channel = *channels.entry(topic.clone()).or_insert_with(|| {
+            writer
+                .add_channel(0, &topic, message.encoding.as_str(), &BTreeMap::new())
+                .unwrap()
+        });
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: sequence as u32,
+            log_time: message.log_time_ns,
+            publish_time: message.log_time_ns,
+        };
+        writer
+            .write_to_known_channel(&header, &message.data)
+            .unwrap();
+    }
+    writer.finish().unwrap();
+    drop(writer);
+    out.into_inner()
+}
+
+#[test]
+fn zstd_and_lz4_recordings_from_other_tools_replay_like_the_original() {
+    let (_, scenario_path) = short_scenario("compressed.toml");
+    let original = scratch("compressed-source.mcap");
+    simulate::simulate(scenario_path.to_str().unwrap(), &original).unwrap();
+    let replay_of = |recording: PathBuf| {
+        let options = ReplayOptions {
+            recording,
+            ..ReplayOptions::default()
+        };
+        replay::replay(&options, |_, _| EventTrace::default()).unwrap()
+    };
+    let (want_summary, want) = replay_of(original.clone());
+    assert!(!want.calls.is_empty());
+    let recording = Recording::open(&original, ReadMode::Strict).unwrap();
+    for compression in [mcap::Compression::Zstd, mcap::Compression::Lz4] {
+        let file = scratch(&format!("compressed-{compression:?}.mcap"));
+        std::fs::write(&file, rewritten_compressed(&recording, compression)).unwrap();
+        let (summary, got) = replay_of(file);
+        assert_eq!(
+            (summary.chunks, summary.bytes, &summary.sensors),
+            (
+                want_summary.chunks,
+                want_summary.bytes,
+                &want_summary.sensors
+            ),
+            "{compression:?}"
+        );
+        assert!(got == want, "{compression:?}: the replay differs");
+    }
+}
+
+#[test]
+fn a_tolerant_replay_that_keeps_nothing_is_an_error_naming_the_file() {
+    let (_, scenario_path) = short_scenario("nothing.toml");
+    let out = scratch("nothing-source.mcap");
+    simulate::simulate(scenario_path.to_str().unwrap(), &out).unwrap();
+    let bytes = std::fs::read(&out).unwrap();
+    // The magic and part of the header record: no sensor message is complete.
+    let cut = scratch("nothing.mcap");
+    std::fs::write(&cut, &bytes[..12]).unwrap();
+    let options = ReplayOptions {
+        recording: cut.clone(),
+        tolerant: true,
+        ..ReplayOptions::default()
+    };
+    let error = replay::replay(&options, |_, _| EventTrace::default()).unwrap_err();
+    assert!(
+        matches!(error, ReplayError::NothingKept { .. }),
+        "{error:?}"
+    );
+    let line = error.to_string();
+    assert!(!line.contains('\n'), "{line}");
+    assert!(
+        line.contains(&cut.display().to_string()) && line.contains("mcap recover"),
+        "{line}"
+    );
+}
+
+/// Every built-in can be recorded, replayed and served (serve-emulators writes the rig
+/// configuration `rig_config` gives): each has an IMU, and a trajectory it can follow.
+#[test]
+fn every_builtin_scenario_simulates_replays_and_has_a_rig_to_serve() {
+    for name in BUILTIN_NAMES {
+        let mut scenario = Scenario::builtin(name).unwrap();
+        scenario.duration_s = scenario.duration_s.min(3.0);
+        assert!(
+            simulate::rig_config(&scenario).is_ok(),
+            "{name} cannot be served"
+        );
+        let path = scratch(&format!("builtin-{name}.toml"));
+        std::fs::write(&path, scenario.to_toml().unwrap()).unwrap();
+        let out = scratch(&format!("builtin-{name}.mcap"));
+        let summary = simulate::simulate(path.to_str().unwrap(), &out)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(summary.imu_samples > 0 && summary.scans > 0, "{name}");
+        let options = ReplayOptions {
+            recording: out,
+            ..ReplayOptions::default()
+        };
+        let (_, trace) = replay::replay(&options, |_, _| EventTrace::default()).unwrap();
+        let imu = trace
+            .calls
+            .iter()
+            .filter(|c| matches!(c, Traced::Imu(_)))
+            .count();
+        assert_eq!(imu as u64, summary.imu_samples, "{name}");
+    }
 }
 
 #[test]

@@ -2,9 +2,9 @@
 //! have reported their geometry (their PP replies), since the odometer needs it.
 
 use super::config::Config;
-use super::pipeline::{EpochCounts, Estimator};
+use super::pipeline::{EpochCounts, Estimator, Outcome};
 use crate::estimate::{Estimate, IntegrityStatus};
-use crate::fusion::{EpochRecord, Fusion, FusionSettings, Sensor};
+use crate::fusion::{EpochOutcome, EpochRecord, Fusion, FusionSettings, Sensor};
 use crate::odometry::ScannerSetup;
 use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
 
@@ -143,6 +143,23 @@ impl Estimator for FusionEstimator {
                 Some(IntegrityStatus::Excluded { .. } | IntegrityStatus::DetectedNotIsolable)
             ),
             excluded: epoch.excluded_planes.len(),
+            outcome: match (&epoch.outcome, &epoch.status) {
+                (EpochOutcome::Reference, _) => Outcome::Reference,
+                (EpochOutcome::Fused, _) => Outcome::Fused,
+                (EpochOutcome::RejectedByGate, _) => Outcome::RejectedByGate,
+                (EpochOutcome::UpdateFailed { .. }, _) => Outcome::Failed,
+                (EpochOutcome::NotFused, Some(IntegrityStatus::UnderDetermined)) => {
+                    Outcome::UnderDetermined
+                }
+                (EpochOutcome::NotFused, Some(IntegrityStatus::DetectedNotIsolable)) => {
+                    Outcome::NotIsolable
+                }
+                (EpochOutcome::NotFused, _) => Outcome::NotFused,
+            },
+            failure: match &epoch.outcome {
+                EpochOutcome::UpdateFailed { reason } => Some(reason.clone()),
+                _ => None,
+            },
         }
     }
 }

@@ -6,7 +6,7 @@
 //!
 //! | situation                                                         | quality            |
 //! |-------------------------------------------------------------------|--------------------|
-//! | estimate degraded (stale sensor, IMU gap) or covariance not finite | -1 (failed)        |
+//! | estimate degraded (stale scanner, IMU gap) or covariance not finite | -1 (failed)       |
 //! | no odometry epoch fused yet, or none for more than `stale_after_s` | -1 (failed)        |
 //! | not converged since the start or a restart                         | 0 (do not use)     |
 //! | largest velocity sigma above `unusable_sigma_mps` (an unobserved axis) | 0 (do not use) |
@@ -20,6 +20,10 @@
 //! confidence of VISION_POSITION_DELTA is the same number with -1 mapped to 0; ArduPilot turns it
 //! into `velErr = VERR_MIN + (VERR_MAX - VERR_MIN) (1 - conf/100)`, so with
 //! `EK3_VIS_VERR_MAX >= 1` a confidence of 0 keeps EKF3 from starting body-odometry aiding.
+//!
+//! Without IMU data there is no estimate and so no message: a -1 would carry a frozen velocity,
+//! which PX4 at its default `EKF2_EV_QMIN = 0` fuses (docs/autopilot.md, "Sensor outages"); the
+//! MAVLink task's HEARTBEAT says CRITICAL instead.
 
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::ResetReason;

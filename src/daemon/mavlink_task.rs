@@ -31,6 +31,10 @@ pub struct Outgoing {
     pub epoch_read_ns: Option<u64>,
 }
 
+/// After this long with no message from the fusion, the estimates have stopped (the IMU is away,
+/// or every sensor): the HEARTBEAT then says CRITICAL, as it does for quality -1.
+const SILENT_AFTER_S: f64 = 1.0;
+
 /// Messages waiting for the link: a second of ODOMETRY at 50 Hz.
 pub const QUEUE_MESSAGES: usize = 64;
 
@@ -139,18 +143,27 @@ pub async fn run(
     let mut heartbeat_poll = tokio::time::interval(HEARTBEAT_POLL);
     heartbeat_poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
     let mut heartbeats = RateLimiter::new(HEARTBEAT_RATE_HZ);
+    let mut last_message_s: Option<f64> = None;
     loop {
         let outgoing = tokio::select! {
             () = cancel.cancelled() => return Ok(()),
             received = messages.recv() => match received {
-                Some(outgoing) => outgoing,
+                Some(outgoing) => {
+                    last_message_s = Some(now_ns() as f64 * 1e-9);
+                    outgoing
+                }
                 None => return Ok(()),
             },
             _ = heartbeat_poll.tick() => {
                 let now_s = now_ns() as f64 * 1e-9;
+                let silent = last_message_s.is_some_and(|t| now_s - t > SILENT_AFTER_S);
+                let system_state = match silent {
+                    true => MavState::MAV_STATE_CRITICAL,
+                    false => *state.lock().unwrap_or_else(PoisonError::into_inner),
+                };
                 match heartbeats.ready(now_s) {
                     true => Outgoing {
-                        message: heartbeat(*state.lock().unwrap_or_else(PoisonError::into_inner)),
+                        message: heartbeat(system_state),
                         epoch_read_ns: None,
                     },
                     false => continue,
@@ -300,6 +313,67 @@ mod tests {
         );
         let summary = latency.lock().unwrap().summary().unwrap();
         assert_eq!((summary.count, summary.median_us), (1, 2_000));
+    }
+
+    /// No estimate while the IMU is away, so no ODOMETRY: the HEARTBEAT must not go on saying
+    /// ACTIVE from the last estimate.
+    #[tokio::test]
+    async fn the_heartbeat_says_critical_once_the_estimates_stop() {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        let autopilot = UdpSocket::bind("127.0.0.1:0").await.unwrap();
+        let link = link_to(&autopilot).await;
+        let (messages_tx, messages_rx) = mpsc::channel(8);
+        let clock = Arc::new(AtomicU64::new(1_000_000_000));
+        let cancel = CancellationToken::new();
+        let task = {
+            let (clock, cancel) = (clock.clone(), cancel.clone());
+            tokio::spawn(async move {
+                let latency = Mutex::new(LatencyLog::new("scan-to-MAVLink"));
+                let state = Mutex::new(MavState::MAV_STATE_ACTIVE);
+                let now_ns = move || clock.load(Ordering::Relaxed);
+                run(&link, messages_rx, now_ns, |_| {}, &latency, &state, cancel).await
+            })
+        };
+        let e = estimate(1.0);
+        let message = odometry(&e, QualityPolicy::default().quality(&e));
+        messages_tx
+            .send(Outgoing {
+                message,
+                epoch_read_ns: None,
+            })
+            .await
+            .unwrap();
+        let mut buffer = [0u8; 300];
+        let mut states = Vec::new();
+        let mut odometry_seen = false;
+        while states.len() < 2 {
+            let (n, _) = timeout(Duration::from_secs(5), autopilot.recv_from(&mut buffer))
+                .await
+                .unwrap()
+                .unwrap();
+            let (_, message) = MavlinkReader::new(&buffer[..n])
+                .read_message::<MavMessage>(MavlinkVersion::V2)
+                .unwrap();
+            match message {
+                MavMessage::HEARTBEAT(h) => states.push(h.system_status),
+                MavMessage::ODOMETRY(_) => odometry_seen = true,
+                _ => {}
+            }
+            if odometry_seen && !states.is_empty() {
+                // 2 s without another estimate.
+                clock.store(3_000_000_000, Ordering::Relaxed);
+            }
+        }
+        cancel.cancel();
+        timeout(Duration::from_secs(5), task)
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+        assert_eq!(
+            states,
+            [MavState::MAV_STATE_ACTIVE, MavState::MAV_STATE_CRITICAL]
+        );
     }
 
     #[tokio::test]

@@ -15,6 +15,7 @@ pub mod latency;
 pub mod link;
 pub mod mavlink_out;
 pub mod mavlink_task;
+pub mod outcomes;
 pub mod outputs;
 pub mod pipeline;
 pub mod recorder_thread;

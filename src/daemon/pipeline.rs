@@ -65,14 +65,61 @@ pub fn sensor_specs(config: &Config) -> Vec<SensorSpec> {
     scanners.chain(std::iter::once(imu)).collect()
 }
 
-/// What an odometry epoch contributes to the replay summary.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+/// What an odometry epoch contributes to the replay summary and to `run`'s log.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct EpochCounts {
     pub planes: usize,
     /// Integrity detected a fault in this epoch.
     pub detected: bool,
     /// Planes excluded as outliers (a moving door, say).
     pub excluded: usize,
+    pub outcome: Outcome,
+    /// Why the filter could not take the epoch, when it [`Outcome::Failed`].
+    pub failure: Option<String>,
+}
+
+/// How an epoch ended, as epochs.jsonl's `outcome` and `status` say it.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Outcome {
+    /// Only the reference of the next epoch.
+    #[default]
+    Reference,
+    Fused,
+    UnderDetermined,
+    NotIsolable,
+    /// Solved and tested, but nothing cleared for fusion.
+    NotFused,
+    RejectedByGate,
+    Failed,
+}
+
+impl Outcome {
+    pub const ALL: [Self; 7] = [
+        Self::Fused,
+        Self::Reference,
+        Self::UnderDetermined,
+        Self::NotIsolable,
+        Self::NotFused,
+        Self::RejectedByGate,
+        Self::Failed,
+    ];
+
+    /// The outcome and its reason, as a user reads it.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::Reference => {
+                "reference only (the first, before the filter aligned, or after a gap)"
+            }
+            Self::Fused => "fused",
+            Self::UnderDetermined => {
+                "under-determined (fewer than three non-parallel planes matched), not fused"
+            }
+            Self::NotIsolable => "not fused: a fault detected that could not be isolated",
+            Self::NotFused => "not fused: no direction cleared by the integrity tests",
+            Self::RejectedByGate => "refused by the filter's innovation gate",
+            Self::Failed => "failed in the filter",
+        }
+    }
 }
 
 /// The estimator the fusion loop drives: the real `Fusion` implements it. Calls come in the

@@ -591,7 +591,8 @@ enum ChannelKind {
 }
 
 /// Reads the records one by one, keeping byte offsets so damage can be located and measured.
-/// Chunks are expected uncompressed, which is what [`Recorder`] writes.
+/// [`Recorder`] writes chunks uncompressed; other tools' zstd and lz4 chunks are decompressed
+/// whole, and damage inside them is located at the chunk.
 struct McapParser<'p> {
     path: &'p Path,
     mode: ReadMode,
@@ -720,14 +721,16 @@ impl<'p> McapParser<'p> {
             Record::Metadata(metadata) if metadata.name == CONFIG_METADATA_NAME => {
                 self.config_toml = metadata.metadata.get(CONFIG_METADATA_KEY).cloned();
             }
-            Record::Chunk { header, data } => {
-                if !header.compression.is_empty() {
-                    return Ok(Step::Damaged(format!(
-                        "chunk compressed with {}, which this build cannot read",
-                        header.compression
-                    )));
-                }
+            Record::Chunk { header, data } if header.compression.is_empty() => {
                 return Ok(Step::Chunk(data.into_owned()));
+            }
+            Record::Chunk { header, data } => {
+                return Ok(
+                    match decompress_chunk(&header.compression, &data, header.uncompressed_size) {
+                        Ok(inner) => Step::Chunk(inner),
+                        Err(reason) => Step::Damaged(reason),
+                    },
+                );
             }
             Record::DataEnd(_) | Record::Footer(_) => return Ok(Step::End),
             _ => {}
@@ -794,6 +797,44 @@ impl<'p> McapParser<'p> {
         }
         Ok(Step::Continue)
     }
+}
+
+/// The records of a chunk other tools compressed: Python's `mcap` writer and ROS 2 write zstd
+/// by default, some writers lz4.
+fn decompress_chunk(
+    compression: &str,
+    data: &[u8],
+    uncompressed_size: u64,
+) -> Result<Vec<u8>, String> {
+    // The size comes from the file: bound it before allocating, as for any other record.
+    if uncompressed_size > MAX_STREAMED_RECORD {
+        return Err(format!(
+            "chunk of {uncompressed_size} bytes uncompressed is implausible"
+        ));
+    }
+    let size = uncompressed_size as usize;
+    let inner = match compression {
+        "zstd" => zstd::bulk::decompress(data, size).map_err(|e| format!("zstd chunk: {e}"))?,
+        "lz4" => {
+            let mut inner = Vec::with_capacity(size);
+            lz4::Decoder::new(data)
+                .and_then(|decoder| decoder.take(uncompressed_size + 1).read_to_end(&mut inner))
+                .map_err(|e| format!("lz4 chunk: {e}"))?;
+            inner
+        }
+        other => {
+            return Err(format!(
+            "chunk compressed with `{other}`, which ladar-odometer cannot read (zstd, lz4 or none)"
+        ))
+        }
+    };
+    if inner.len() != size {
+        return Err(format!(
+            "{compression} chunk decompressed to {} bytes, its header says {size}",
+            inner.len()
+        ));
+    }
+    Ok(inner)
 }
 
 enum Step {
@@ -978,6 +1019,99 @@ mod tests {
         assert_eq!((truth.t, truth.p, truth.v), (want.t, want.p, want.v));
         assert!(truth.q.angle_to(&want.q) < 1e-12);
         std::fs::remove_file(&file).unwrap();
+    }
+
+    /// `traffic()` as another tool writes it: compressed chunks of about 2 kB.
+    fn written_by_another_tool(compression: mcap::Compression) -> Vec<u8> {
+        let mut out = Cursor::new(Vec::new());
+        let mut writer = WriteOptions::new()
+            .compression(Some(compression))
+            .chunk_size(Some(2048))
+            .create(&mut out)
+            .unwrap();
+        let mut channels = HashMap::new();
+        for (sequence, (sensor, encoding, direction, t, bytes)) in traffic().into_iter().enumerate()
+        {
+            let topic = format!("/{sensor}/{}", direction.as_str());
+            let channel = *channels.entry(topic.clone()).or_insert_with(|| {
+                writer
+                    .add_channel(0, &topic, encoding.as_str(), &BTreeMap::new())
+                    .unwrap()
+            });
+            let header = MessageHeader {
+                channel_id: channel,
+                sequence: sequence as u32,
+                log_time: t,
+                publish_time: t,
+            };
+            writer.write_to_known_channel(&header, &bytes).unwrap();
+        }
+        writer.finish().unwrap();
+        drop(writer);
+        out.into_inner()
+    }
+
+    #[test]
+    fn zstd_and_lz4_chunks_from_other_tools_are_read_whole_and_streamed() {
+        for compression in [mcap::Compression::Zstd, mcap::Compression::Lz4] {
+            let bytes = written_by_another_tool(compression);
+            let recording = Recording::parse(&bytes, &path(), ReadMode::Strict)
+                .unwrap_or_else(|e| panic!("{compression:?}: {e}"));
+            assert_every_byte_is_back(&recording);
+            let file = scratch(&format!("{compression:?}"));
+            std::fs::write(&file, &bytes).unwrap();
+            let mut reader = RecordingReader::open(&file, ReadMode::Strict).unwrap();
+            let mut messages = Vec::new();
+            while let Some(message) = reader.next_message().unwrap() {
+                messages.push(message);
+            }
+            assert_eq!(messages, recording.messages, "{compression:?}");
+            std::fs::remove_file(&file).unwrap();
+        }
+    }
+
+    #[test]
+    fn a_damaged_compressed_chunk_is_refused_in_one_line_and_the_chunks_before_it_kept() {
+        let mut bytes = written_by_another_tool(mcap::Compression::Zstd);
+        let mut chunks = Vec::new();
+        let mut offset = mcap::MAGIC.len();
+        while bytes[offset] != 0x0F {
+            // Up to the data end record, top-level records: opcode, u64 length, body.
+            if bytes[offset] == 0x06 {
+                chunks.push(offset);
+            }
+            let length = u64::from_le_bytes(bytes[offset + 1..offset + 9].try_into().unwrap());
+            offset += 9 + length as usize;
+        }
+        assert!(chunks.len() >= 3, "{} chunks", chunks.len());
+        // The zstd frame's magic number: the chunk header is times, sizes, crc and "zstd".
+        let frame = chunks[chunks.len() / 2] + 9 + 8 + 8 + 8 + 4 + 4 + 4 + 8;
+        bytes[frame] ^= 0xFF;
+        let err = Recording::parse(&bytes, &path(), ReadMode::Strict)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("truncated or corrupt") && !err.contains('\n'),
+            "{err}"
+        );
+        let kept = Recording::parse(&bytes, &path(), ReadMode::Tolerant).unwrap();
+        assert!(kept.loss.is_some());
+        assert!(
+            !kept.messages.is_empty() && kept.messages.len() < traffic().len(),
+            "{}",
+            kept.messages.len()
+        );
+    }
+
+    #[test]
+    fn an_unknown_compression_names_what_can_be_read() {
+        let reason = decompress_chunk("bz2", &[1, 2, 3], 3).unwrap_err();
+        assert!(
+            reason.contains("`bz2`") && reason.contains("zstd, lz4"),
+            "{reason}"
+        );
+        let reason = decompress_chunk("zstd", &[1, 2, 3], MAX_STREAMED_RECORD + 1).unwrap_err();
+        assert!(reason.contains("implausible"), "{reason}");
     }
 
     #[test]

@@ -5,6 +5,7 @@
 use super::config::Config;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
+use super::outcomes::{OutcomeCounts, OutcomeWarnings};
 use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
 use super::recording::{
@@ -61,6 +62,10 @@ pub enum ReplayError {
     Config { path: PathBuf, errors: String },
     #[error("recording from an unknown sensor: {path} has bytes from `{sensor}`, which its configuration does not list (replay the file the recording came with, or fix its [[scanner]]/[imu] names)")]
     UnknownSensor { path: PathBuf, sensor: String },
+    #[error("replay --tolerant kept nothing of {path}: {loss} before any complete sensor message; if the file is cut, try `mcap recover` (Foxglove's mcap CLI), else record it again")]
+    NothingKept { path: PathBuf, loss: Loss },
+    #[error("recording {path} holds no sensor bytes to replay (expected /<sensor>/rx channels as `run --record` and `simulate` write)")]
+    Empty { path: PathBuf },
     #[error(transparent)]
     Output(#[from] OutputError),
     #[error("{0}")]
@@ -84,6 +89,8 @@ pub struct ReplaySummary {
     pub planes: u64,
     pub detections: u64,
     pub exclusions: u64,
+    /// How the epochs ended.
+    pub outcomes: OutcomeCounts,
     pub truth: Option<TruthErrors>,
     pub autopilot: Option<AutopilotView>,
     pub loss: Option<Loss>,
@@ -113,6 +120,7 @@ impl fmt::Display for ReplaySummary {
             "  {} estimates, {} epochs, {per_epoch:.1} planes per epoch, {} detections, {} exclusions",
             self.estimates, self.epochs, self.detections, self.exclusions
         )?;
+        writeln!(f, "  epochs: {}", self.outcomes)?;
         match &self.truth {
             Some(t) => {
                 writeln!(
@@ -209,6 +217,13 @@ pub fn replay<E: Estimator>(
     // Without a configuration the sensors are whatever the file holds, in order of appearance.
     let discover = config.is_none();
     let first = reader.next_message()?;
+    if first.is_none() {
+        let path = path.to_path_buf();
+        return Err(match reader.loss().cloned() {
+            Some(loss) => ReplayError::NothingKept { path, loss },
+            None => ReplayError::Empty { path },
+        });
+    }
     if discover {
         if let Some(message) = &first {
             specs.push(spec_for(message, 0));
@@ -224,6 +239,12 @@ pub fn replay<E: Estimator>(
     let mut pipeline = Pipeline::new(specs, estimator);
     let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
+    tracing::info!(
+        recording = %path.display(),
+        format = ?reader.format(),
+        configuration = if config.is_some() { "recorded" } else { "none, sensors from the file" },
+        "replaying"
+    );
     let progress = progress_bar(options.progress, reader.position().1);
     let mut tally = Tally {
         epoch_lines: options.report.then(Vec::new),
@@ -253,6 +274,13 @@ pub fn replay<E: Estimator>(
             tally.pace(message.log_time_ns, started);
         }
         tally.chunk(&message);
+        tracing::trace!(
+            sensor = %message.sensor,
+            direction = message.direction.as_str(),
+            log_time_ns = message.log_time_ns,
+            bytes = message.data.len(),
+            "chunk"
+        );
         let chunk = Chunk {
             sensor,
             direction: message.direction,
@@ -306,6 +334,7 @@ pub fn replay<E: Estimator>(
         planes: tally.planes,
         detections: tally.detections,
         exclusions: tally.exclusions,
+        outcomes: tally.outcomes,
         truth: ned_truth,
         autopilot: autopilot_view(&tally.kept, &truth, &mavlink.stream.policy()),
         loss: reader.loss().cloned(),
@@ -420,6 +449,10 @@ struct Tally {
     planes: u64,
     detections: u64,
     exclusions: u64,
+    outcomes: OutcomeCounts,
+    warnings: OutcomeWarnings,
+    /// Log time of the chunk being replayed, s: the warnings' clock, as in `run`.
+    now_s: f64,
     kept: Vec<Estimate>,
     /// The epochs as `epochs.jsonl` holds them, when a report will be drawn.
     epoch_lines: Option<Vec<serde_json::Value>>,
@@ -429,6 +462,7 @@ impl Tally {
     fn chunk(&mut self, message: &RecordedMessage) {
         self.chunks += 1;
         self.bytes += message.data.len() as u64;
+        self.now_s = message.log_time_ns as f64 * 1e-9;
         if message.log_time_ns != 0 {
             self.first_ns.get_or_insert(message.log_time_ns);
             self.last_ns = self.last_ns.max(message.log_time_ns);
@@ -488,6 +522,17 @@ impl Tally {
                 self.planes += counts.planes as u64;
                 self.detections += u64::from(counts.detected);
                 self.exclusions += counts.excluded as u64;
+                tracing::debug!(
+                    outcome = counts.outcome.describe(),
+                    planes = counts.planes,
+                    excluded = counts.excluded,
+                    failure = counts.failure.as_deref(),
+                    "epoch"
+                );
+                if let Some(warning) = self.warnings.observe(&counts, self.now_s) {
+                    tracing::warn!("{warning}");
+                }
+                self.outcomes.add(&counts);
                 if let Some(lines) = &mut self.epoch_lines {
                     lines.push(serde_json::to_value(&epoch).map_err(|source| {
                         OutputError::Serialise {

@@ -12,6 +12,7 @@ use super::latency::{LatencyLog, LatencySummary};
 use super::link::{Link, LinkError};
 use super::mavlink_out::{MavlinkStream, QualityPolicy};
 use super::mavlink_task::{Feed, Outgoing, SharedState, QUEUE_MESSAGES};
+use super::outcomes::{OutcomeCounts, OutcomeWarnings};
 use super::outputs::{OutputError, Outputs};
 use super::pipeline::{sensor_specs, Estimator, Output, Pipeline, SensorSpec};
 use super::recorder_thread::{self, RecorderHandle, RecorderSummary, Tap};
@@ -73,6 +74,8 @@ pub struct RunReport<E> {
     pub unrecorded_chunks: u64,
     pub recording: Option<(PathBuf, RecorderSummary)>,
     pub sensors: Vec<(String, DecodeCounts)>,
+    /// How the epochs ended.
+    pub outcomes: OutcomeCounts,
 }
 
 /// Runs until `cancel`, then shuts down in order and reports.
@@ -88,9 +91,9 @@ where
     let (config, config_text) = Config::load_with_text(&options.config)?;
     let specs = sensor_specs(&config);
     let links = sensor_links(&config);
-    for link in &links {
-        sensor_task::check_port(&link.name, &link.connection).map_err(RunError::Port)?;
-    }
+    sensor_task::wait_for_ports(&links, sensor_task::DEVICE_WAIT, &cancel)
+        .await
+        .map_err(RunError::Port)?;
     let recording = recording_path(&config, options.record.clone());
     let recorder = match &recording {
         Some(path) => {
@@ -212,6 +215,7 @@ where
             .zip(fused.pipeline.decode_counts())
             .collect(),
         estimator: fused.pipeline.into_estimator(),
+        outcomes: fused.outcomes,
         chunks: fused.chunks,
         latency,
         fused_latency: fused.latency.summary(),
@@ -347,6 +351,7 @@ struct Fused<E: Estimator> {
     chunks: u64,
     latency: LatencyLog,
     feed: Option<Feed>,
+    outcomes: OutcomeCounts,
 }
 
 /// The fusion thread: consumption order is recording order is replay order.
@@ -367,6 +372,8 @@ fn fusion_loop<E: Estimator>(
     let mut chunks = 0;
     let mut latency = LatencyLog::new("scan-to-fused");
     let mut health = Health::new(names.iter().map(|(name, _)| name.to_string()).collect());
+    let mut outcomes = OutcomeCounts::default();
+    let mut warnings = OutcomeWarnings::default();
     loop {
         progress.advance();
         let chunk = match queue.pop(Duration::from_millis(100)) {
@@ -377,15 +384,23 @@ fn fusion_loop<E: Estimator>(
         chunks += 1;
         let mut closed_epoch = false;
         let mut newest = None;
+        let now_s = chunk.log_time_ns as f64 * 1e-9;
         pipeline.push(&chunk, |output| {
-            closed_epoch |= matches!(output, Output::Epoch(_));
-            if let Output::Estimate(estimate) = &output {
-                newest = Some(estimate.clone());
+            match &output {
+                Output::Epoch(epoch) => {
+                    closed_epoch = true;
+                    let counts = E::epoch_counts(epoch);
+                    if let Some(warning) = warnings.observe(&counts, now_s) {
+                        tracing::warn!("{warning}");
+                    }
+                    outcomes.add(&counts);
+                }
+                Output::Estimate(estimate) => newest = Some(estimate.clone()),
+                Output::EpochEstimate(_) => {}
             }
             deliver::<E>(output, chunk.log_time_ns, outputs, feed.as_mut());
         });
         let stale: Vec<bool> = (0..names.len()).map(|k| pipeline.is_stale(k)).collect();
-        let now_s = chunk.log_time_ns as f64 * 1e-9;
         if let Some(line) = health.observe(newest.as_ref(), &stale, now_s) {
             watchdog::status(&line);
         }
@@ -408,6 +423,7 @@ fn fusion_loop<E: Estimator>(
         chunks,
         latency,
         feed,
+        outcomes,
     }
 }
 

@@ -61,11 +61,71 @@ impl HostClock {
 trait Port: AsyncRead + AsyncWrite + Send + Unpin {}
 impl<T: AsyncRead + AsyncWrite + Send + Unpin> Port for T {}
 
-/// Why a port cannot be used at all, checked once at start-up: a typo in the configuration is
-/// an error then, while a port that comes and goes later is retried.
-pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), String> {
+/// How long `run` waits at start for serial devices that do not exist yet: on a Pi the USB
+/// devices may enumerate after the service starts. Within the unit's TimeoutStartSec (30 s),
+/// and long enough that a slow enumeration does not use up StartLimitBurst with quick failures.
+pub const DEVICE_WAIT: Duration = Duration::from_secs(20);
+const DEVICE_POLL: Duration = Duration::from_millis(250);
+
+/// Why a port cannot be used.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct PortProblem {
+    /// The device does not exist (yet): worth waiting for at start.
+    pub missing: bool,
+    pub message: String,
+}
+
+/// Checks every sensor's port at start, waiting up to `patience` for devices that do not exist
+/// yet (each is logged once, and named in the systemd status); any other problem, or a device
+/// still missing then, is the error. A typo in the configuration thus still stops the start,
+/// while a port that comes and goes later is retried by its task. Returns early on `cancel`.
+pub async fn wait_for_ports(
+    links: &[SensorLink],
+    patience: Duration,
+    cancel: &CancellationToken,
+) -> Result<(), String> {
+    // Tokio's clock, so that a test can run the wait in paused time.
+    let deadline = tokio::time::Instant::now() + patience;
+    let mut announced = vec![false; links.len()];
+    loop {
+        let mut missing = false;
+        for (link, announced) in links.iter().zip(&mut announced) {
+            match check_port(&link.name, &link.connection) {
+                Ok(()) => {}
+                Err(problem) if problem.missing && tokio::time::Instant::now() < deadline => {
+                    missing = true;
+                    if !*announced {
+                        *announced = true;
+                        tracing::warn!(
+                            sensor = %link.name,
+                            "{}; waiting up to {} s for it to appear",
+                            problem.message,
+                            patience.as_secs()
+                        );
+                        super::watchdog::status(&format!("waiting for sensor `{}`", link.name));
+                    }
+                }
+                Err(problem) => return Err(problem.message),
+            }
+        }
+        if !missing {
+            return Ok(());
+        }
+        tokio::select! {
+            () = cancel.cancelled() => return Ok(()),
+            () = tokio::time::sleep(DEVICE_POLL) => {}
+        }
+    }
+}
+
+/// Why a port cannot be used at all, right now.
+pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), PortProblem> {
     let SensorConnection::Serial { path, .. } = connection else {
         return Ok(());
+    };
+    let unusable = |message: String| PortProblem {
+        missing: false,
+        message,
     };
     use std::os::unix::fs::OpenOptionsExt;
     // Linux O_NONBLOCK | O_NOCTTY: a UART waiting for carrier must not hang the start-up check,
@@ -78,22 +138,25 @@ pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), Strin
         .open(path)
     {
         Ok(_) => Ok(()),
-        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(format!(
-            "sensor `{name}`: serial port {} does not exist: plug the sensor in, check the udev rule, or fix its `connection`",
-            path.display()
-        )),
-        Err(e) if e.kind() == io::ErrorKind::PermissionDenied => Err(format!(
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Err(PortProblem {
+            missing: true,
+            message: format!(
+                "sensor `{name}`: serial port {} does not exist: plug the sensor in, check the udev rule, or fix its `connection`",
+                path.display()
+            ),
+        }),
+        Err(e) if e.kind() == io::ErrorKind::PermissionDenied => Err(unusable(format!(
             "sensor `{name}`: no permission to open {}: add the daemon's user to the `dialout` group (or install the udev rule)",
             path.display()
-        )),
-        Err(e) if e.raw_os_error() == Some(16) => Err(format!(
+        ))),
+        Err(e) if e.raw_os_error() == Some(16) => Err(unusable(format!(
             "sensor `{name}`: {} is busy: another program (or another ladar-odometer) holds it; stop that one first",
             path.display()
-        )),
-        Err(e) => Err(format!(
+        ))),
+        Err(e) => Err(unusable(format!(
             "sensor `{name}`: cannot open {}: {e}",
             path.display()
-        )),
+        ))),
     }
 }
 
@@ -407,5 +470,78 @@ async fn sleep_until(deadline: Option<tokio::time::Instant>) {
     match deadline {
         Some(deadline) => tokio::time::sleep_until(deadline).await,
         None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn link(path: &std::path::Path) -> SensorLink {
+        SensorLink {
+            index: 0,
+            name: "front".into(),
+            connection: SensorConnection::Serial {
+                path: path.to_path_buf(),
+                baud: None,
+            },
+            driver: Driver::Scip(scip::DeviceConfig::default()),
+        }
+    }
+
+    fn scratch(name: &str) -> std::path::PathBuf {
+        let path = std::env::temp_dir().join(format!("ladar-port-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_file(&path);
+        path
+    }
+
+    #[tokio::test]
+    async fn a_device_that_enumerates_late_is_waited_for() {
+        let device = scratch("late");
+        let appear = {
+            let device = device.clone();
+            tokio::spawn(async move {
+                tokio::time::sleep(Duration::from_millis(400)).await;
+                std::os::unix::fs::symlink("/dev/null", &device).unwrap();
+            })
+        };
+        let started = Instant::now();
+        let cancel = CancellationToken::new();
+        wait_for_ports(&[link(&device)], Duration::from_secs(5), &cancel)
+            .await
+            .unwrap();
+        assert!(started.elapsed() >= Duration::from_millis(400));
+        appear.await.unwrap();
+        std::fs::remove_file(&device).unwrap();
+    }
+
+    #[tokio::test]
+    async fn a_device_still_missing_after_the_wait_is_one_line_naming_it() {
+        let device = scratch("never");
+        let cancel = CancellationToken::new();
+        let error = wait_for_ports(&[link(&device)], Duration::from_millis(300), &cancel)
+            .await
+            .unwrap_err();
+        assert!(
+            error.contains("does not exist") && error.contains(&device.display().to_string()),
+            "{error}"
+        );
+        assert!(!error.contains('\n'), "{error}");
+    }
+
+    #[tokio::test]
+    async fn a_device_that_cannot_be_opened_is_not_waited_for() {
+        // A directory exists but is no port: a configuration error, reported at once.
+        let started = Instant::now();
+        let cancel = CancellationToken::new();
+        let error = wait_for_ports(
+            &[link(&std::env::temp_dir())],
+            Duration::from_secs(30),
+            &cancel,
+        )
+        .await
+        .unwrap_err();
+        assert!(error.contains("cannot open"), "{error}");
+        assert!(started.elapsed() < Duration::from_secs(5));
     }
 }

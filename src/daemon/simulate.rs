@@ -408,6 +408,6 @@ fn stationary_until(trajectory: &Trajectory) -> Option<f64> {
         } else {
             *start_s
         }),
-        Trajectory::Step { at_s, .. } => Some(*at_s),
+        Trajectory::Step { at_s, ramp_s, .. } => Some(at_s - ramp_s),
     }
 }

@@ -32,6 +32,11 @@ pub const PAPER_SCANNER: ScannerGeometry = ScannerGeometry {
 };
 
 pub(crate) const PAPER_EPOCH_S: f64 = 1.0;
+/// The rig moves in the 0.2 s before the second epoch: the scans take 0.25-0.75 s of each 1 s
+/// revolution (steps 180-540 of 720), so both still see the paper's two poses exactly, and an
+/// IMU can follow the move (6.8 m/s and 104 m/s^2 at the peak: violent, but only the
+/// recording and the emulators use the IMU, never the paper's studies).
+const PAPER_RAMP_S: f64 = 0.2;
 
 /// Wall facing the origin: centre at `range` along azimuth `az_deg` (from north, to the right),
 /// normal towards the origin, then skewed about the vertical and tilted about its horizontal axis.
@@ -105,9 +110,11 @@ pub(crate) fn paper_sim(bias: PaperBias) -> Scenario {
             at_s: PAPER_EPOCH_S,
             position_after_m,
             rpy_after_deg,
+            ramp_s: PAPER_RAMP_S,
         },
         scanners: vec![scanner("level", 0.0), scanner("raised", 10.0)],
-        imu: None,
+        // Not in the paper's simulation; it lets the scenario be recorded, replayed and served.
+        imu: Some(ImuConfig::default()),
         scene,
     }
 }
@@ -226,7 +233,8 @@ pub(crate) fn office_door() -> Scenario {
             urg("urg-low", [-18.3, -19.3, 0.0], 0.03),
             urg("urg-high", [28.7, -5.7, 0.0], -0.03),
         ],
-        imu: None,
+        // The paper's tripod had none; it lets the scenario be recorded, replayed and served.
+        imu: Some(ImuConfig::default()),
         scene,
     }
 }

@@ -77,13 +77,12 @@ struct PoseKnots<'a> {
 
 impl<'a> PoseKnots<'a> {
     fn new(trajectory: &'a Trajectory, t_first: f64, step_period: f64) -> Self {
-        // A jump must land on the beam where it happens, so jumpy paths get a knot per beam.
-        let stride = if matches!(trajectory, Trajectory::Stationary { .. }) {
-            usize::MAX
-        } else if trajectory.is_smooth() {
-            ((POSE_KNOT_SPACING_S / step_period) as usize).max(1)
-        } else {
-            1
+        // Steps get a knot per beam: a jump must land on the beam where it happens, and a ramped
+        // step (paper-sim) keeps the exact poses, so the paper's figures do not depend on it.
+        let stride = match trajectory {
+            Trajectory::Stationary { .. } => usize::MAX,
+            Trajectory::Step { .. } => 1,
+            _ => ((POSE_KNOT_SPACING_S / step_period) as usize).max(1),
         };
         let knot_period = step_period * stride.min(1 << 20) as f64;
         let left = trajectory.pose(t_first);

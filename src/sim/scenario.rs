@@ -130,9 +130,12 @@ impl Scenario {
         if !(self.truth_rate_hz > 0.0 && self.truth_rate_hz.is_finite()) {
             return Err(invalid("truth_rate_hz must be positive".into()));
         }
+        if let Some(problem) = self.trajectory.problem() {
+            return Err(invalid(problem));
+        }
         if self.imu.is_some() && !self.trajectory.is_smooth() {
             return Err(invalid(
-                "a step trajectory jumps, so no IMU can follow it: remove the [imu] table".into(),
+                "a step trajectory with no ramp_s jumps, so no IMU can follow it: give it a ramp_s or remove the [imu] table".into(),
             ));
         }
         let problems = self
@@ -233,12 +236,25 @@ mod tests {
             .contains(&format!("patch \"{}\"", scenario.scene.patches[0].name)));
 
         let mut paper = Scenario::builtin("paper-sim").unwrap();
-        paper.imu = Some(ImuConfig::default());
+        assert!(paper.imu.is_some() && paper.validate().is_ok());
+        let set_ramp = |paper: &mut Scenario, seconds: f64| {
+            let Trajectory::Step { ramp_s, .. } = &mut paper.trajectory else {
+                panic!("paper-sim is a step");
+            };
+            *ramp_s = seconds;
+        };
+        set_ramp(&mut paper, 0.0);
         assert!(paper
             .validate()
             .unwrap_err()
             .to_string()
             .contains("remove the [imu] table"));
+        set_ramp(&mut paper, -1.0);
+        assert!(paper
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("ramp_s = -1 is invalid"));
 
         let mut custom = Scenario::builtin("paper-sim").unwrap();
         custom.scanners[0].geometry = None;

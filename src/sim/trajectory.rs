@@ -156,13 +156,16 @@ pub enum Trajectory {
         #[serde(default)]
         oscillation: Oscillation,
     },
-    /// Pose jumps at `at_s` (the paper's two compensated epochs). Has no IMU-consistent motion.
+    /// Pose jumps at `at_s` (the paper's two compensated epochs), or with `ramp_s > 0` moves
+    /// over the `ramp_s` before `at_s` (minimum-jerk profile), which an IMU can follow.
     Step {
         position_m: [f64; 3],
         rpy_deg: [f64; 3],
         at_s: f64,
         position_after_m: [f64; 3],
         rpy_after_deg: [f64; 3],
+        #[serde(default, skip_serializing_if = "is_zero")]
+        ramp_s: f64,
     },
 }
 
@@ -187,7 +190,17 @@ pub struct Kinematics {
 impl Trajectory {
     /// Whether the motion has continuous acceleration, which an IMU needs.
     pub fn is_smooth(&self) -> bool {
-        !matches!(self, Self::Step { .. })
+        !matches!(self, Self::Step { ramp_s, .. } if *ramp_s <= 0.0)
+    }
+
+    /// What is wrong with the trajectory's own values, if anything.
+    pub fn problem(&self) -> Option<String> {
+        match self {
+            Self::Step { ramp_s, .. } if !(ramp_s.is_finite() && *ramp_s >= 0.0) => Some(format!(
+                "trajectory ramp_s = {ramp_s} is invalid: set a duration in seconds, 0 or more"
+            )),
+            _ => None,
+        }
     }
 
     /// Position and attitude only (cheaper than [`Self::kinematics`]; used per beam).
@@ -266,19 +279,38 @@ impl Trajectory {
                 at_s,
                 position_after_m,
                 rpy_after_deg,
+                ramp_s,
             } => {
-                let (p, e) = if t < *at_s {
-                    (position_m, rpy_deg)
-                } else {
-                    (position_after_m, rpy_after_deg)
+                let start = at_s - ramp_s;
+                let constant = |p: &[f64; 3], e: &[f64; 3]| {
+                    (
+                        p.map(Jet::constant),
+                        e.map(|a| Jet::constant(a.to_radians())),
+                    )
                 };
-                (
-                    p.map(Jet::constant),
-                    e.map(|a| Jet::constant(a.to_radians())),
-                )
+                // Outside the ramp the poses are the end poses exactly, not blends that round:
+                // the paper's scans and its faults (placed at `at_s`) are taken there.
+                if t >= *at_s {
+                    constant(position_after_m, rpy_after_deg)
+                } else if t < start {
+                    constant(position_m, rpy_deg)
+                } else {
+                    let s = Jet::smooth_step(t, start, *ramp_s);
+                    let blend = |from: f64, to: f64| Jet::constant(from).add(s.scale(to - from));
+                    (
+                        std::array::from_fn(|i| blend(position_m[i], position_after_m[i])),
+                        std::array::from_fn(|i| {
+                            blend(rpy_deg[i].to_radians(), rpy_after_deg[i].to_radians())
+                        }),
+                    )
+                }
             }
         }
     }
+}
+
+fn is_zero(value: &f64) -> bool {
+    *value == 0.0
 }
 
 fn hover_coordinates(

@@ -135,6 +135,25 @@ impl IntegrityCheckReport {
 
 /// Runs the check on the scenario named (or the TOML file given) in `args`.
 pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport, StudyError> {
+    integrity_check_with_progress(args, &mut |_, _| {})
+}
+
+/// Pairs the check simulates: the fault-free ones, then as many per bias size.
+pub fn pairs_to_run(args: &IntegrityCheckArgs) -> usize {
+    args.runs * (1 + TRANSLATION_BIASES_M.len() + ROTATION_BIASES_DEG.len())
+}
+
+/// [`integrity_check`], calling `progress(done, total)` after each simulated pair.
+pub fn integrity_check_with_progress(
+    args: &IntegrityCheckArgs,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<IntegrityCheckReport, StudyError> {
+    let total = pairs_to_run(args);
+    let mut done = 0;
+    let mut step = move || {
+        done += 1;
+        progress(done, total);
+    };
     if args.runs < 10 {
         return Err(StudyError::TooFewRuns {
             runs: args.runs,
@@ -146,7 +165,10 @@ pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport
         .map_err(|e| StudyError::Config(e.to_string()))?;
     let mut rig = Rig::new(&scenario, args.seed, paper_config())?;
     let clean: Vec<PairOutcome> = (0..args.runs)
-        .map(|_| run_pair(&mut rig, &monitor, None))
+        .map(|_| {
+            step();
+            run_pair(&mut rig, &monitor, None)
+        })
         .collect();
     let studied = studied_planes(&clean, args.runs);
     if studied.len() < 4 {
@@ -169,9 +191,10 @@ pub fn integrity_check(args: &IntegrityCheckArgs) -> Result<IntegrityCheckReport
         .iter()
         .map(|&p| (p, label_name(&scenario, &[Some(p), Some(p)])))
         .collect();
-    let detection = |rig: &mut Rig, make: &dyn Fn(usize, f64) -> Fault, bias: f64| {
+    let mut detection = |rig: &mut Rig, make: &dyn Fn(usize, f64) -> Fault, bias: f64| {
         let outcomes: Vec<PairOutcome> = (0..args.runs)
             .map(|r| {
+                step();
                 let fault = make(movable[r % movable.len()], bias);
                 run_pair(rig, &monitor, Some(fault))
             })
@@ -480,6 +503,19 @@ impl fmt::Display for IntegrityCheckReport {
                 r.mdb.to_degrees()
             )?;
         }
+        let untestable = self.planes.iter().any(|p| {
+            [&p.displacement, &p.rotation]
+                .iter()
+                .any(|r| !(r.gamma.is_finite() && r.threshold.is_finite() && r.mdb.is_finite()))
+        });
+        if untestable {
+            writeln!(
+                f,
+                "inf: in some pairs no other plane checked a direction of that plane (it alone \
+                 observed an axis, or too few planes for the rotation), so no bias along it is \
+                 detectable: no threshold, an unbounded MDB; the figures are means over pairs"
+            )?;
+        }
         let fa = &self.false_alarms;
         writeln!(
             f,
@@ -494,5 +530,40 @@ impl fmt::Display for IntegrityCheckReport {
         write_detection(f, "m", &self.translation)?;
         writeln!(f, "detection, one plane turned about the body:")?;
         write_detection(f, "deg", &self.rotation)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn progress_counts_every_pair_and_inf_cells_are_explained() {
+        let args = IntegrityCheckArgs {
+            runs: 10,
+            ..IntegrityCheckArgs::default()
+        };
+        let mut seen = Vec::new();
+        let mut report =
+            integrity_check_with_progress(&args, &mut |done, total| seen.push((done, total)))
+                .unwrap();
+        let total = pairs_to_run(&args);
+        assert_eq!(total, 110);
+        assert_eq!(
+            seen,
+            (1..=total).map(|done| (done, total)).collect::<Vec<_>>()
+        );
+        let all_finite = report.to_string();
+        assert!(!all_finite.contains("inf"), "{all_finite}");
+        report.planes[0].displacement.mdb = f64::INFINITY;
+        let text = report.to_string();
+        let explained = text
+            .lines()
+            .find(|l| l.starts_with("inf: "))
+            .unwrap_or_else(|| panic!("{text}"));
+        assert!(
+            explained.contains("no bias along it is detectable"),
+            "{explained}"
+        );
     }
 }
