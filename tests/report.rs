@@ -132,6 +132,54 @@ fn assert_truth_is_tum_for_evo(path: &Path) {
     }
 }
 
+/// `estimate.mcap` holds Foxglove's well-known schemas in JSON: the pose at the kept 20 Hz, each
+/// scanner's scans with its angles, the planes of every epoch, and the mounts on `/tf`.
+#[test]
+fn estimate_mcap_carries_foxglove_schemas_with_pose_scans_and_planes() {
+    let dir = scratch("foxglove");
+    report_of_bundled_recording(&dir);
+    let bytes = std::fs::read(dir.join("estimate.mcap")).unwrap();
+    let mut per_topic: std::collections::BTreeMap<String, (String, usize)> = Default::default();
+    for message in mcap::MessageStream::new(&bytes).unwrap() {
+        let message = message.unwrap();
+        let schema = message.channel.schema.as_ref().unwrap();
+        assert_eq!(schema.encoding, "jsonschema");
+        assert_eq!(message.channel.message_encoding, "json");
+        let value: serde_json::Value = serde_json::from_slice(&message.data).unwrap();
+        match schema.name.as_str() {
+            "foxglove.LaserScan" => {
+                assert!(value["ranges"].as_array().unwrap().len() > 100);
+                let (start, end) = (
+                    value["start_angle"].as_f64().unwrap(),
+                    value["end_angle"].as_f64().unwrap(),
+                );
+                assert!(
+                    (start - end).abs() > 3.0,
+                    "a UTM/UST scan spans 270 degrees"
+                );
+            }
+            "foxglove.PoseInFrame" => assert_eq!(value["frame_id"], "ned"),
+            "foxglove.SceneUpdate" => assert_eq!(value["entities"][0]["frame_id"], "body"),
+            _ => {}
+        }
+        let entry = per_topic
+            .entry(message.channel.topic.clone())
+            .or_insert((schema.name.clone(), 0));
+        entry.1 += 1;
+    }
+    let count = |topic: &str, schema: &str| {
+        let (name, n) = per_topic.get(topic).cloned().unwrap_or_default();
+        assert_eq!(name, schema, "{topic}: {per_topic:?}");
+        n
+    };
+    assert!(count("/pose", "foxglove.PoseInFrame") > 1000);
+    assert!(count("/tf", "foxglove.FrameTransform") > 1000);
+    assert!(count("/scan/utm", "foxglove.LaserScan") > 200);
+    assert!(count("/scan/ust", "foxglove.LaserScan") > 200);
+    assert!(count("/planes", "foxglove.SceneUpdate") >= 70);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn report_without_out_is_one_line_naming_the_fix() {
     let options = ReplayOptions {

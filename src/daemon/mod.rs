@@ -8,6 +8,8 @@
 
 pub mod chunk_queue;
 pub mod config;
+pub mod foxglove;
+mod foxglove_schemas;
 pub mod fusion_estimator;
 pub mod health;
 pub mod in_process;

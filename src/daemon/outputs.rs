@@ -1,6 +1,7 @@
 //! The files `run` and `replay` write with `--out DIR` (DESIGN.md section 6): `trajectory.tum`,
 //! `epochs.jsonl` and `mavlink.tlog`. Each writer is buffered; `finish` flushes and reports the
-//! first write error, which would otherwise be lost in a drop.
+//! first write error, which would otherwise be lost in a drop. `replay` adds `truth.tum` (here),
+//! `estimate.mcap` (`daemon::foxglove`) and, with `--report`, `report.html` (`crate::report`).
 
 use crate::estimate::Estimate;
 use crate::sensors::TruthSample;

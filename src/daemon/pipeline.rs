@@ -266,6 +266,10 @@ impl<E: Estimator> Pipeline<E> {
         &self.estimator
     }
 
+    pub fn estimator_mut(&mut self) -> &mut E {
+        &mut self.estimator
+    }
+
     pub fn into_estimator(self) -> E {
         self.estimator
     }

@@ -3,6 +3,7 @@
 //! recording is streamed one MCAP chunk at a time, so a long flight replays in a few megabytes.
 
 use super::config::Config;
+use super::foxglove::FoxgloveWriter;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
 use super::outcomes::{OutcomeCounts, OutcomeWarnings};
@@ -235,6 +236,7 @@ pub fn replay<E: Estimator>(
     let estimator = FromTime {
         inner: make_estimator(config.as_ref(), &specs),
         from_s,
+        tapped: options.out.is_some().then(Vec::new),
     };
     let mut pipeline = Pipeline::new(specs, estimator);
     let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
@@ -246,8 +248,19 @@ pub fn replay<E: Estimator>(
         "replaying"
     );
     let progress = progress_bar(options.progress, reader.position().1);
+    let scanners: Vec<_> = config.as_ref().map_or_else(Vec::new, |c| {
+        c.scanners
+            .iter()
+            .map(|s| (s.name.clone(), s.mount()))
+            .collect()
+    });
     let mut tally = Tally {
         epoch_lines: options.report.then(Vec::new),
+        foxglove: options
+            .out
+            .as_deref()
+            .map(|dir| FoxgloveWriter::create(dir, &scanners))
+            .transpose()?,
         ..Tally::default()
     };
     let started = Instant::now();
@@ -296,12 +309,16 @@ pub fn replay<E: Estimator>(
         if let Some(e) = failure {
             return Err(e);
         }
+        tally.tapped(pipeline.estimator_mut().drain_tapped())?;
         progress.set_position(reader.position().0);
         next = reader.next_message()?;
     }
     progress.finish_and_clear();
     if let Some(outputs) = outputs {
         outputs.finish()?;
+    }
+    if let Some(foxglove) = tally.foxglove.take() {
+        foxglove.finish()?;
     }
     let truth = reader.take_truth();
     if let (Some(dir), false) = (&options.out, truth.is_empty()) {
@@ -369,12 +386,29 @@ fn write_report(path: &std::path::Path, html: &str) -> Result<(), ReplayError> {
 struct FromTime<E> {
     inner: E,
     from_s: f64,
+    /// Scans and geometries seen, for `estimate.mcap`, when it is written.
+    tapped: Option<Vec<Tapped>>,
+}
+
+/// What the fusion was given that `estimate.mcap` draws too.
+enum Tapped {
+    Geometry(usize, ScannerGeometry),
+    Scan(Scan),
+}
+
+impl<E> FromTime<E> {
+    fn drain_tapped(&mut self) -> Vec<Tapped> {
+        self.tapped.as_mut().map(std::mem::take).unwrap_or_default()
+    }
 }
 
 impl<E: Estimator> Estimator for FromTime<E> {
     type Epoch = E::Epoch;
 
     fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
+        if let Some(tapped) = &mut self.tapped {
+            tapped.push(Tapped::Geometry(scanner, geometry));
+        }
         self.inner.geometry(scanner, geometry);
     }
 
@@ -385,9 +419,13 @@ impl<E: Estimator> Estimator for FromTime<E> {
     }
 
     fn scan(&mut self, scan: Scan) -> Option<Self::Epoch> {
-        (scan.t0 >= self.from_s)
-            .then(|| self.inner.scan(scan))
-            .flatten()
+        if scan.t0 < self.from_s {
+            return None;
+        }
+        if let Some(tapped) = &mut self.tapped {
+            tapped.push(Tapped::Scan(scan.clone()));
+        }
+        self.inner.scan(scan)
     }
 
     fn epoch_estimate(&self) -> Option<Estimate> {
@@ -456,6 +494,7 @@ struct Tally {
     kept: Vec<Estimate>,
     /// The epochs as `epochs.jsonl` holds them, when a report will be drawn.
     epoch_lines: Option<Vec<serde_json::Value>>,
+    foxglove: Option<FoxgloveWriter>,
 }
 
 impl Tally {
@@ -472,6 +511,20 @@ impl Tally {
     fn duration_s(&self) -> f64 {
         self.first_ns
             .map_or(0.0, |first| (self.last_ns - first) as f64 * 1e-9)
+    }
+
+    /// Draws the scans and geometries the fusion was given into `estimate.mcap`.
+    fn tapped(&mut self, tapped: Vec<Tapped>) -> Result<(), OutputError> {
+        let Some(foxglove) = &mut self.foxglove else {
+            return Ok(());
+        };
+        for event in tapped {
+            match event {
+                Tapped::Geometry(scanner, geometry) => foxglove.geometry(scanner, geometry),
+                Tapped::Scan(scan) => foxglove.scan(&scan)?,
+            }
+        }
+        Ok(())
     }
 
     fn pace(&self, log_time_ns: u64, started: Instant) {
@@ -499,6 +552,9 @@ impl Tally {
                     .is_none_or(|last| estimate.t - last.t >= 1.0 / KEPT_ESTIMATE_HZ)
                 {
                     self.kept.push(estimate.clone());
+                    if let Some(foxglove) = &mut self.foxglove {
+                        foxglove.estimate(&estimate)?;
+                    }
                 }
                 let outputs = match outputs {
                     Some(outputs) => {
@@ -533,13 +589,19 @@ impl Tally {
                     tracing::warn!("{warning}");
                 }
                 self.outcomes.add(&counts);
-                if let Some(lines) = &mut self.epoch_lines {
-                    lines.push(serde_json::to_value(&epoch).map_err(|source| {
-                        OutputError::Serialise {
-                            path: REPORT_FILE.into(),
-                            source,
-                        }
-                    })?);
+                let drawn = self.epoch_lines.is_some() || self.foxglove.is_some();
+                let line = drawn
+                    .then(|| serde_json::to_value(&epoch))
+                    .transpose()
+                    .map_err(|source| OutputError::Serialise {
+                        path: REPORT_FILE.into(),
+                        source,
+                    })?;
+                if let (Some(foxglove), Some(line)) = (&mut self.foxglove, &line) {
+                    foxglove.epoch(line)?;
+                }
+                if let (Some(lines), Some(line)) = (&mut self.epoch_lines, line) {
+                    lines.push(line);
                 }
                 if let Some(outputs) = outputs {
                     outputs.epoch(&epoch)?;
