@@ -95,6 +95,10 @@ enum Command {
         /// Configured missed-detection probability (integrity.missed_detection_probability).
         #[arg(long, value_name = "P")]
         missed_detection_probability: Option<f64>,
+        /// Also draw the study as one HTML page: the test statistic with and without a fault
+        /// (paper Figs. 6 and 7), detection rate against bias size, the planes' noise figures.
+        #[arg(long, value_name = "FILE.html")]
+        report: Option<PathBuf>,
     },
     /// Serve emulated sensors (SCIP and Xbus on ptys, SCIP on TCP where the configuration says
     /// tcp:) in real time, so that `run` can be exercised with no hardware.
@@ -179,6 +183,7 @@ fn main() -> ExitCode {
             json,
             false_alarm_probability,
             missed_detection_probability,
+            report,
         } => integrity_check(
             scenario,
             runs,
@@ -186,6 +191,7 @@ fn main() -> ExitCode {
             json,
             false_alarm_probability,
             missed_detection_probability,
+            report,
         ),
         Command::ServeEmulators {
             config,
@@ -373,6 +379,7 @@ fn integrity_check(
     json: bool,
     false_alarm_probability: Option<f64>,
     missed_detection_probability: Option<f64>,
+    report_path: Option<PathBuf>,
 ) -> Result<(), String> {
     use ladar_odometer::study::{integrity_check_with_progress, pairs_to_run, IntegrityCheckArgs};
     let mut args = IntegrityCheckArgs {
@@ -400,6 +407,15 @@ fn integrity_check(
         .map_err(|e| e.to_string())?;
     bar.finish_and_clear();
     println!("{}", report.render(json));
+    if let Some(path) = report_path {
+        let html = ladar_odometer::report::integrity::render(&report).map_err(|e| e.to_string())?;
+        std::fs::write(&path, html).map_err(|e| {
+            format!(
+                "cannot write {}: {e} (choose a writable --report path)",
+                path.display()
+            )
+        })?;
+    }
     Ok(())
 }
 

@@ -180,6 +180,55 @@ fn estimate_mcap_carries_foxglove_schemas_with_pose_scans_and_planes() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `integrity-check --report`: the histograms of the test statistic with and without a fault,
+/// and the detection curves, each a parsed SVG holding its series.
+#[test]
+fn the_integrity_check_report_draws_both_histograms_and_the_detection_curves() {
+    use ladar_odometer::study::{integrity_check, IntegrityCheckArgs};
+    let report = integrity_check(&IntegrityCheckArgs {
+        runs: 40,
+        ..IntegrityCheckArgs::default()
+    })
+    .unwrap();
+    assert_eq!(report.statistics.fault_free.len(), 40);
+    assert_eq!(report.statistics.biased.len(), 40);
+    // A plane moved by 0.1 m pushes the statistic up: the histograms differ where it matters.
+    let median = |values: &[f64]| {
+        let mut sorted = values.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        sorted[sorted.len() / 2]
+    };
+    assert!(median(&report.statistics.biased) > 3.0 * median(&report.statistics.fault_free));
+    let html = ladar_odometer::report::integrity::render(&report).unwrap();
+    let figures = figures(&html);
+    let expected: [(&str, &[&str]); 3] = [
+        (
+            "statistic-histogram",
+            &["fault-free", "plane moved 0.1 m", "threshold"],
+        ),
+        (
+            "detection-translation",
+            &["detected", "right plane excluded"],
+        ),
+        ("detection-rotation", &["detected", "right plane excluded"]),
+    ];
+    for (id, series) in expected {
+        let (_, named, svg) = figures.iter().find(|(f, _, _)| f == id).unwrap();
+        let document = roxmltree::Document::parse(svg).unwrap();
+        let texts: Vec<&str> = document
+            .descendants()
+            .filter_map(|n| n.text())
+            .map(str::trim)
+            .collect();
+        for name in series {
+            assert!(
+                named.iter().any(|n| n == name) && texts.contains(name),
+                "{id}: {name}"
+            );
+        }
+    }
+}
+
 #[test]
 fn report_without_out_is_one_line_naming_the_fix() {
     let options = ReplayOptions {

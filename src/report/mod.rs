@@ -7,6 +7,7 @@
 pub mod chart;
 mod epochs;
 mod html;
+pub mod integrity;
 
 use crate::daemon::mavlink_out::QualityPolicy;
 use crate::daemon::replay::ReplaySummary;

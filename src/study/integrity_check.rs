@@ -7,7 +7,7 @@
 use super::harness::{Fault, PlaneLabel, Rig};
 use super::pairs::{run_pair, PairOutcome};
 use super::{paper_config, StudyError};
-use crate::integrity::{IntegrityConfig, IntegrityMonitor, SolveTest};
+use crate::integrity::{IntegrityConfig, IntegrityMonitor, SolveKind, SolveTest};
 use crate::odometry::tangent_basis;
 use crate::sim::Scenario;
 use serde::Serialize;
@@ -15,6 +15,8 @@ use std::fmt;
 
 /// Translational biases tried, metres.
 pub const TRANSLATION_BIASES_M: [f64; 5] = [0.02, 0.05, 0.1, 0.15, 0.2];
+/// The translational bias whose test statistics are kept for the histogram (paper Fig. 7).
+pub const HISTOGRAM_BIAS_M: f64 = 0.1;
 /// Rotational biases tried, degrees.
 pub const ROTATION_BIASES_DEG: [f64; 5] = [1.0, 2.0, 4.0, 6.0, 8.0];
 /// A plane is studied when it is matched in at least this share of fault-free pairs.
@@ -104,6 +106,16 @@ pub struct DetectionRow {
     pub per_plane: Vec<PlaneDetection>,
 }
 
+/// The displacement test's statistic over its threshold, per pair, without a fault and with a
+/// plane moved by `bias_m` (paper Figs. 6 and 7), for the report's histograms. Left out of the
+/// JSON, which stays the figures.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TestStatistics {
+    pub bias_m: f64,
+    pub fault_free: Vec<f64>,
+    pub biased: Vec<f64>,
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct IntegrityCheckReport {
     pub scenario: String,
@@ -116,6 +128,8 @@ pub struct IntegrityCheckReport {
     pub false_alarms: FalseAlarms,
     pub translation: Vec<DetectionRow>,
     pub rotation: Vec<DetectionRow>,
+    #[serde(skip)]
+    pub statistics: TestStatistics,
 }
 
 impl IntegrityCheckReport {
@@ -191,6 +205,7 @@ pub fn integrity_check_with_progress(
         .iter()
         .map(|&p| (p, label_name(&scenario, &[Some(p), Some(p)])))
         .collect();
+    let mut biased = Vec::new();
     let mut detection = |rig: &mut Rig, make: &dyn Fn(usize, f64) -> Fault, bias: f64| {
         let outcomes: Vec<PairOutcome> = (0..args.runs)
             .map(|r| {
@@ -199,6 +214,9 @@ pub fn integrity_check_with_progress(
                 run_pair(rig, &monitor, Some(fault))
             })
             .collect();
+        if bias == HISTOGRAM_BIAS_M {
+            biased = displacement_statistics(&monitor, &outcomes);
+        }
         detection_row(bias, &outcomes, &names)
     };
     let translation = TRANSLATION_BIASES_M
@@ -233,7 +251,23 @@ pub fn integrity_check_with_progress(
         false_alarms: false_alarms(&clean, args.integrity.false_alarm_probability),
         translation,
         rotation,
+        statistics: TestStatistics {
+            bias_m: HISTOGRAM_BIAS_M,
+            fault_free: displacement_statistics(&monitor, &clean),
+            biased,
+        },
     })
+}
+
+/// Each pair's displacement test statistic over its threshold, with every matched plane (before
+/// any exclusion): above 1 the test fires.
+fn displacement_statistics(monitor: &IntegrityMonitor, outcomes: &[PairOutcome]) -> Vec<f64> {
+    outcomes
+        .iter()
+        .filter_map(|o| o.epoch.displacement.as_ref().ok())
+        .filter_map(|solution| monitor.test(SolveKind::Displacement, &solution.system).ok())
+        .map(|test| test.chi_square / test.chi_square_threshold)
+        .collect()
 }
 
 /// Labels of the planes matched in at least half of the pairs, most often seen first.

@@ -15,7 +15,7 @@ pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig
 pub use integrity_check::{
     integrity_check, integrity_check_with_progress, pairs_to_run, DetectionRow, FalseAlarms,
     IntegrityCheckArgs, IntegrityCheckReport, PlaneDetection, PlaneFigures, RowFigures,
-    ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
+    TestStatistics, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
 };
 pub use pairs::{check_pair, run_pair, PairOutcome};
 pub use paper::{
