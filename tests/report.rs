@@ -67,6 +67,15 @@ fn figures(html: &str) -> Vec<(String, Vec<String>, String)> {
         .collect()
 }
 
+/// The texts of an SVG: axis labels, titles and legend entries.
+fn texts<'a>(document: &'a roxmltree::Document) -> Vec<&'a str> {
+    document
+        .descendants()
+        .filter_map(|node| node.text())
+        .map(str::trim)
+        .collect()
+}
+
 #[test]
 fn the_report_holds_every_figure_and_each_svg_parses_with_its_series() {
     let dir = scratch("figures");
@@ -79,11 +88,7 @@ fn the_report_holds_every_figure_and_each_svg_parses_with_its_series() {
             .unwrap_or_else(|| panic!("no figure {id}"));
         let document = roxmltree::Document::parse(svg)
             .unwrap_or_else(|e| panic!("figure {id} is not well-formed SVG: {e}"));
-        let texts: Vec<&str> = document
-            .descendants()
-            .filter_map(|node| node.text())
-            .map(str::trim)
-            .collect();
+        let texts = texts(&document);
         for series in expected {
             assert!(named.iter().any(|n| n == series), "{id} names {named:?}");
             assert!(texts.contains(series), "{id} has no legend entry {series}");
@@ -215,11 +220,7 @@ fn the_integrity_check_report_draws_both_histograms_and_the_detection_curves() {
     for (id, series) in expected {
         let (_, named, svg) = figures.iter().find(|(f, _, _)| f == id).unwrap();
         let document = roxmltree::Document::parse(svg).unwrap();
-        let texts: Vec<&str> = document
-            .descendants()
-            .filter_map(|n| n.text())
-            .map(str::trim)
-            .collect();
+        let texts = texts(&document);
         for name in series {
             assert!(
                 named.iter().any(|n| n == name) && texts.contains(name),

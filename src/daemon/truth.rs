@@ -104,12 +104,17 @@ pub fn autopilot_view(
 }
 
 fn nearest(truth: &[TruthSample], t: f64) -> Option<&TruthSample> {
-    let after = truth.partition_point(|s| s.t < t);
+    nearest_in_time(truth, t, |sample| sample.t)
+}
+
+/// The item of a time-ordered slice whose time is nearest `t`.
+pub(crate) fn nearest_in_time<T>(items: &[T], t: f64, time: impl Fn(&T) -> f64) -> Option<&T> {
+    let after = items.partition_point(|item| time(item) < t);
     [after.checked_sub(1), Some(after)]
         .into_iter()
         .flatten()
-        .filter_map(|i| truth.get(i))
-        .min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs()))
+        .filter_map(|i| items.get(i))
+        .min_by(|a, b| (time(a) - t).abs().total_cmp(&(time(b) - t).abs()))
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ pub mod integrity;
 
 use crate::daemon::mavlink_out::QualityPolicy;
 use crate::daemon::replay::ReplaySummary;
+use crate::daemon::truth::nearest_in_time;
 use crate::estimate::Estimate;
 use crate::sensors::TruthSample;
 use chart::{Axes, ChartError, Mark, Series, BLUE, GREEN, GREY, ORANGE, PURPLE, RED};
@@ -54,7 +55,7 @@ impl RunReport<'_> {
     }
 
     fn truth_at(&self, t: f64) -> Option<&TruthSample> {
-        nearest_truth(self.truth, t)
+        nearest_in_time(self.truth, t, |sample| sample.t)
     }
 
     fn velocity_section(&self, page: &mut Page) -> Result<(), ChartError> {
@@ -178,13 +179,7 @@ impl RunReport<'_> {
     }
 
     fn estimate_at(&self, t: f64) -> Option<&Estimate> {
-        let after = self.estimates.partition_point(|e| e.t < t);
-        [after.checked_sub(1), Some(after)]
-            .into_iter()
-            .flatten()
-            .filter_map(|i| self.estimates.get(i))
-            .min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs()))
-            .filter(|e| (e.t - t).abs() < 0.25)
+        nearest_in_time(self.estimates, t, |e| e.t).filter(|e| (e.t - t).abs() < 0.25)
     }
 
     fn autopilot_section(&self, page: &mut Page) -> Result<(), ChartError> {
@@ -275,15 +270,6 @@ fn quantile(series: &[(f64, f64)], q: f64) -> f64 {
 /// The filter's attitude error: the rotation vector taking the estimate to the truth, in NED.
 fn attitude_error(estimate: &UnitQuaternion<f64>, truth: &UnitQuaternion<f64>) -> Vector3<f64> {
     (truth * estimate.inverse()).scaled_axis()
-}
-
-fn nearest_truth(truth: &[TruthSample], t: f64) -> Option<&TruthSample> {
-    let after = truth.partition_point(|s| s.t < t);
-    [after.checked_sub(1), Some(after)]
-        .into_iter()
-        .flatten()
-        .filter_map(|i| truth.get(i))
-        .min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs()))
 }
 
 #[cfg(test)]
