@@ -6,7 +6,7 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use crate::filter::ResetReason;
 use serde::Serialize;
 
-/// Integrity verdict of one odometry epoch (DESIGN.md 4.8).
+/// Integrity verdict of one odometry epoch (docs/design.md, 4.8 "Integrity").
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 #[serde(tag = "status", rename_all = "snake_case")]
 pub enum IntegrityStatus {

@@ -1,6 +1,6 @@
 //! Measurement types shared by the simulator, the driver adapters, the geometry core and the
-//! filter. Frames and conventions follow DESIGN.md section 3: body FRD, navigation NED, times in
-//! seconds on the host monotonic clock.
+//! filter. Frames and conventions follow docs/design.md, "Frames": body FRD, navigation NED, times
+//! in seconds on the host monotonic clock.
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};

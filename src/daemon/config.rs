@@ -125,7 +125,7 @@ pub struct ScannerConfig {
     /// Also the recording topic `/<name>/rx`: letters, digits, `-` and `_`.
     pub name: String,
     pub connection: String,
-    /// Mount `[roll, pitch, yaw]` in degrees, DESIGN.md section 3.
+    /// Mount `[roll, pitch, yaw]` in degrees (docs/design.md, "Frames").
     pub rpy_deg: [f64; 3],
     pub translation_m: [f64; 3],
     /// Ranging noise, one sigma, metres.

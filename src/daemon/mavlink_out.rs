@@ -1,5 +1,5 @@
 //! MAVLink messages for the autopilot, built from [`Estimate`]s. Pure: no I/O, no clock; the
-//! caller passes `now` and sends what comes back (PROTOCOLS.md section 3, DESIGN.md section 6).
+//! caller passes `now` and sends what comes back (docs/protocols.md and docs/design.md, "MAVLink").
 //!
 //! Quality (ODOMETRY `quality`, int8) and confidence (VISION_POSITION_DELTA `confidence`,
 //! 0-100 %) come from the same mapping, [`QualityPolicy::quality`]:

@@ -1,4 +1,5 @@
-//! The files `run` and `replay` write with `--out DIR` (DESIGN.md section 6): `trajectory.tum`,
+//! The files `run` and `replay` write with `--out DIR` (docs/design.md, "Output files"):
+//! `trajectory.tum`,
 //! `epochs.jsonl` and `mavlink.tlog`. Each writer is buffered; `finish` flushes and reports the
 //! first write error, which would otherwise be lost in a drop. `replay` adds `truth.tum` (here),
 //! `estimate.mcap` (`daemon::foxglove`) and, with `--report`, `report.html` (`crate::report`).

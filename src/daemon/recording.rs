@@ -1,5 +1,5 @@
-//! Recordings (DESIGN.md section 6): every byte to and from every device, in MCAP, so that a
-//! flight can be replayed through exactly the code that ran live.
+//! Recordings (docs/design.md, "Recordings"): every byte to and from every device, in MCAP, so that
+//! a flight can be replayed through exactly the code that ran live.
 //!
 //! One schemaless channel per direction per device, topic `/<sensor>/rx` or `/<sensor>/tx`,
 //! message encoding `scip2` or `xbus`, one message per chunk of bytes exactly as read or

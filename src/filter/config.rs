@@ -17,16 +17,16 @@ pub const STANDARD_GRAVITY: f64 = 9.80665;
 #[serde(rename_all = "snake_case")]
 pub enum RelativePoseUpdate {
     /// Displacement and rotation fused against a stochastic clone of the pose at the earlier
-    /// epoch, so the correlation between the two epochs is kept (DESIGN.md 4.9).
+    /// epoch, so the correlation between the two epochs is kept (docs/design.md, 4.9 "Filter").
     Cloned,
     /// The paper's update (sec. 4.3): body velocity = displacement / interval, and the rotation
     /// fused on the current attitude with the earlier attitude taken as exact.
     Velocity,
 }
 
-/// Keys of the `[filter]` table. Units are SI unless the key says `_deg`; noise densities are
-/// per square root of a hertz, random walks are the densities of the white noise driving the
-/// walk. Defaults are the MTi-G-7x0 / MTi-300 datasheet figures (PROTOCOLS.md 2.5).
+/// Keys of the `[filter]` table. Units are SI unless the key says `_deg`; noise densities are per
+/// square root of a hertz, random walks are the densities of the white noise driving the walk.
+/// Defaults are the MTi-G-7x0 / MTi-300 datasheet figures (docs/protocols.md, 2.5 "Noise figures").
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct FilterConfig {
@@ -104,7 +104,8 @@ pub struct FilterConfig {
     /// interval and the link's latency. At most `pose_history_s`.
     pub epoch_max_delay_s: f64,
     /// IMU mount: rotation of the IMU frame into body FRD, `[roll, pitch, yaw]` in degrees,
-    /// composed as in DESIGN.md 3. The lever arm is neglected (body origin at the IMU).
+    /// composed as in docs/design.md, "Frames". The lever arm is neglected (body origin at the
+    /// IMU).
     pub imu_mount_rpy_deg: [f64; 3],
     /// Length of the pose history kept for deskewing and odometer priors, s.
     pub pose_history_s: f64,

@@ -1,4 +1,4 @@
-//! Strapdown mechanisation and the error-state EKF (section 4.3, DESIGN.md 4.9).
+//! Strapdown mechanisation and the error-state EKF (paper sec. 4.3; docs/design.md, 4.9 "Filter").
 //!
 //! How the fusion drives it (all times on the host clock, in time order):
 //! 1. `Eskf::new(config)`, then `push_imu(&sample)` for every IMU sample. The first

@@ -9,8 +9,8 @@
 //! by least squares (the windowed minimum-delay fit of NTP-style clock filters). Latency
 //! spikes, jitter and dropped packets only change which packet is the minimum of a bin.
 //!
-//! The counter is unwrapped with its modulus (2^24 for SCIP, 864,000,000 for MTi-1/10/100
-//! series, 2^32 for MTi-600 series), taking each step as the signed difference closest to
+//! The counter is unwrapped with its modulus (2^24 for SCIP, 864,000,000 for the MTi-10/100
+//! series, 2^32 for the MTi-1 and 600 series), taking each step as the signed difference closest to
 //! zero, so small backward steps (Xsens frames stamped with the GNSS sample time) are kept as
 //! such. A step the host clock contradicts by more than `max_jump_s` (a sensor reset, `RS`)
 //! restarts the estimate and is counted.
@@ -43,11 +43,11 @@ impl ClockConfig {
     pub fn scip() -> Self {
         Self::with_counter(1000.0, 1 << 24)
     }
-    /// Xsens MTi-1/10/100 series (MTi-G-700/710): 10 kHz, wraps after one day.
+    /// Xsens MTi-10/100 series (MTi-G-700/710): 10 kHz, wraps after one day.
     pub fn xsens_100_series() -> Self {
         Self::with_counter(10_000.0, 864_000_000)
     }
-    /// Xsens MTi-600 series: 10 kHz, wraps at 2^32.
+    /// Xsens MTi-1 and 600 series: 10 kHz, wraps at 2^32.
     pub fn xsens_600_series() -> Self {
         Self::with_counter(10_000.0, 1 << 32)
     }

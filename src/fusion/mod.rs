@@ -1,5 +1,6 @@
 //! Pure wiring of IMU samples and scans, in time order, through the core and the filter
-//! (DESIGN.md 4.9): no I/O, no clock, no tokio; the same inputs give the same outputs bit for bit.
+//! (docs/design.md, "Layout"): no I/O, no clock, no tokio; the same inputs give the same outputs
+//! bit for bit.
 //!
 //! `Fusion` pairs the latest scan of each scanner into an odometry epoch at the configured rate
 //! (`epoch`), deskews them with the filter's pose history, extracts planes, matches them with

@@ -249,7 +249,7 @@ impl ScannerDecoder {
                         continue;
                     };
                     // A revolution is sent once it is complete, one scan period after step 0
-                    // (DESIGN 3; the simulator's convention too).
+                    // (docs/design.md, "Clocks"; the simulator's convention too).
                     let t0 = self.clock.observe(
                         u64::from(data.timestamp),
                         received.map(|r| r - geometry.scan_period()),

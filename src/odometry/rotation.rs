@@ -1,6 +1,6 @@
-//! Rotation between epochs (paper section 2, eqs 3-7), improved as DESIGN 4.6 asks: the
-//! residual of each matched normal is taken in the 2-D tangent plane of `n_i`, so a plane gives
-//! two independent rows whose covariance comes from both epochs' normal errors, and the
+//! Rotation between epochs (paper section 2, eqs 3-7), improved as docs/design.md, 4.6 "Rotation",
+//! says: the residual of each matched normal is taken in the 2-D tangent plane of `n_i`, so a plane
+//! gives two independent rows whose covariance comes from both epochs' normal errors, and the
 //! linearisation is iterated from the IMU prior to convergence.
 //!
 //! Conventions: `C = C_j^i` rotates body-j vectors into body i (`C n_j = n_i`, eq 3). Each step

@@ -36,8 +36,8 @@ impl TriadErrors {
         scale_factor: [0.0; 3],
     };
 
-    /// PROTOCOLS.md 2.5: 0.01 deg/s/sqrt(Hz); the 10 deg/h in-run bias is reached after 100 s of
-    /// random walk; turn-on bias and scale factor of a calibrated MEMS unit.
+    /// docs/protocols.md, 2.5 "Noise figures": 0.01 deg/s/sqrt(Hz); the 10 deg/h in-run bias is
+    /// reached after 100 s of random walk; turn-on bias and scale factor of a calibrated MEMS unit.
     pub fn mti_gyro() -> Self {
         Self {
             noise_density: 0.01 * DEG,
@@ -47,7 +47,8 @@ impl TriadErrors {
         }
     }
 
-    /// PROTOCOLS.md 2.5: 60 ug/sqrt(Hz); the 15 ug in-run bias is reached after 100 s.
+    /// docs/protocols.md, 2.5 "Noise figures": 60 ug/sqrt(Hz); the 15 ug in-run bias is reached
+    /// after 100 s.
     pub fn mti_accel() -> Self {
         Self {
             noise_density: 60.0 * MICRO_G,

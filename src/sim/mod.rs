@@ -1,6 +1,6 @@
 //! Ray-cast scanners, IMU and moving scene with ground truth: a pure, deterministic simulator.
 //!
-//! Frames follow DESIGN.md section 3 (NED navigation, FRD body, scanner mounts as
+//! Frames follow docs/design.md, "Frames" (NED navigation, FRD body, scanner mounts as
 //! `sensors::Mount`). Gravity is the constant standard value [`GRAVITY`] along NED +z, and the
 //! Earth does not rotate: a still IMU measures zero rate and a specific force of -g along NED z.
 //! Events stream in time order, so a 500 s scenario never sits in memory.

@@ -132,7 +132,7 @@ pub struct ScannerConfig {
     /// Required for `custom`, overrides the model's geometry otherwise.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub geometry: Option<ScannerGeometry>,
-    /// `[roll, pitch, yaw]` of the scanner frame in the body frame (DESIGN 3).
+    /// `[roll, pitch, yaw]` of the scanner frame in the body frame (docs/design.md, "Frames").
     pub mount_rpy_deg: [f64; 3],
     #[serde(default)]
     pub mount_translation_m: [f64; 3],

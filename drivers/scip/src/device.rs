@@ -1,6 +1,7 @@
-//! Sans-IO device state machine following urg_library's connection sequence (PROTOCOLS 1.9):
-//! probe with QT (recovering from SCIP 1.1, TM adjust mode or a running stream), read VV and PP,
-//! sample the sensor clock with TM0/TM1/TM2, switch the laser on with BM, then stream MD/ME.
+//! Sans-IO device state machine following urg_library's connection sequence (docs/protocols.md, 1.9
+//! "Start-up sequence"): probe with QT (recovering from SCIP 1.1, TM adjust mode or a running
+//! stream), read VV and PP, sample the sensor clock with TM0/TM1/TM2, switch the laser on with BM,
+//! then stream MD/ME.
 //!
 //! The caller moves bytes and time: `handle_input(now, bytes)`, `poll_transmit(now)`,
 //! `poll_event()`, `poll_timeout()` / `handle_timeout(now)`. `now` is host monotonic seconds.
@@ -96,7 +97,7 @@ pub struct ClockSample {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scan {
     /// Sensor time of step 0 of this revolution, unwrapped, ms; step k was measured
-    /// `k * 60 / (SCAN * ARES)` s later (PROTOCOLS 1.6).
+    /// `k * 60 / (SCAN * ARES)` s later (docs/protocols.md, 1.7 "Timestamps").
     pub timestamp_ms: u64,
     pub raw_timestamp: u32,
     /// Host time when the reply's last byte arrived.
@@ -133,7 +134,7 @@ impl fmt::Display for DeviceError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             DeviceError::Timeout { phase } => write!(f, "SCIP sensor did not answer while {phase:?}: check cable, port, baud rate and power"),
-            DeviceError::Status { command, status } => write!(f, "SCIP sensor refused {command} with status {status}: see PROTOCOLS 1.6 for the code and fix the request or the sensor state"),
+            DeviceError::Status { command, status } => write!(f, "SCIP sensor refused {command} with status {status}: see docs/protocols.md, section 1.6, for the code and fix the request or the sensor state"),
             DeviceError::BadParameters(e) => e.fmt(f),
             DeviceError::StreamStalled => f.write_str("SCIP stream stopped delivering scans: restarting; check the link if this repeats"),
             DeviceError::BadConfig(e) => write!(f, "SCIP stream configuration invalid: {e}"),

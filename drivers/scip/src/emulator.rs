@@ -1,5 +1,6 @@
-//! A SCIP 2.0 sensor on the other side of the wire, fed with scans and a clock by its owner.
-//! Tests and `serve-emulators` use it; it answers like the real sensors in PROTOCOLS 1.6.
+//! A SCIP 2.0 sensor on the other side of the wire, fed with scans and a clock by its owner. Tests
+//! and `serve-emulators` use it; it answers like the real sensors in docs/protocols.md, 1.6
+//! "Commands and statuses".
 
 use std::fmt;
 
@@ -8,7 +9,7 @@ use crate::encoding::{encode_value, push_data_blocks, push_summed_line};
 use crate::params::{Parameters, Version};
 
 /// What the emulated sensor reports about itself. Only the PP values of the presets are sourced
-/// (PROTOCOLS 1.8); their VV strings are plausible placeholders.
+/// (docs/protocols.md, 1.8 "Model parameters"); their VV strings are plausible placeholders.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Model {
     pub version: Version,
@@ -67,7 +68,8 @@ impl Model {
         )
     }
 
-    /// UST-20LX; DMIN/DMAX are datasheet values (PROTOCOLS 1.8 marks them unconfirmed).
+    /// UST-20LX; DMIN/DMAX are datasheet values (docs/protocols.md, 1.8 "Model parameters", marks
+    /// them unconfirmed).
     pub fn ust_20lx() -> Model {
         Model::new(
             "Hokuyo Automatic Co.,Ltd.",
@@ -356,7 +358,8 @@ impl Emulator {
         self.output.extend_from_slice(echo);
         self.output.extend_from_slice(b"\n00P\n");
         for (key, value) in lines {
-            // The sum excludes the ';', the variant PROTOCOLS 1.4 tells emulators to emit.
+            // The sum excludes the ';', the variant the spec's examples use (docs/protocols.md, 1.4
+            // "Line sum").
             let content = format!("{key}:{value}");
             self.output.extend_from_slice(content.as_bytes());
             self.output.push(b';');

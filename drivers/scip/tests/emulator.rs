@@ -1,5 +1,5 @@
-//! The emulator answers like a real sensor: byte-exact against PROTOCOLS 1.10(c), and the
-//! statuses of PROTOCOLS 1.6.
+//! The emulator answers like a real sensor: byte-exact against the worked examples of
+//! docs/protocols.md (1.10), and the statuses of its 1.6 "Commands and statuses".
 
 use scip::{Body, Decoder, Emulator, Model, Status};
 

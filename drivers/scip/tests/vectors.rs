@@ -1,4 +1,5 @@
-//! Real captures (../shared/vectors) and the generated examples of PROTOCOLS.md 1.10(c).
+//! Real captures (../shared/vectors) and the generated examples of docs/protocols.md, 1.10 "Worked
+//! examples".
 
 use std::path::PathBuf;
 

@@ -242,7 +242,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn set_output_configuration_matches_protocols_md_example() {
+    fn set_output_configuration_matches_the_documented_example() {
         let c = OutputConfiguration::new(&[
             OutputEntry {
                 id: DataId(0x1020),

@@ -14,7 +14,7 @@ pub const DEFAULT_MAX_PAYLOAD: usize = 2048;
 /// Largest payload the wire format can describe.
 pub const MAX_WIRE_PAYLOAD: usize = u16::MAX as usize;
 
-/// Message identifiers used by this crate (PROTOCOLS.md section 2.3).
+/// Message identifiers used by this crate (docs/protocols.md, 2.3 "Message identifiers").
 pub mod mid {
     pub const REQ_DID: u8 = 0x00;
     pub const DEVICE_ID: u8 = 0x01;
@@ -275,7 +275,7 @@ mod tests {
     }
 
     #[test]
-    fn zero_payload_frames_match_protocols_md() {
+    fn zero_payload_frames_match_the_documented_bytes() {
         for (mid, bytes) in [
             (mid::REQ_DID, [0xFA, 0xFF, 0x00, 0x00, 0x01]),
             (mid::GO_TO_MEASUREMENT, [0xFA, 0xFF, 0x10, 0x00, 0xF1]),

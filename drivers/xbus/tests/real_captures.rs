@@ -163,7 +163,7 @@ fn xsens_go_captures_decode_in_every_precision() {
 }
 
 #[test]
-fn set_one_first_frame_matches_protocols_md() {
+fn set_one_first_frame_matches_the_documented_decode() {
     let Some((dir, _)) = golden() else { return };
     let bytes = std::fs::read(dir.join("1/output.bin")).unwrap();
     let frames = all_frames(&bytes, 7);
