@@ -231,8 +231,15 @@ pub fn replay<E: Estimator>(
         }
     }
     let first_s = first.as_ref().map_or(0.0, |m| m.log_time_ns as f64 * 1e-9);
-    let from_s = first_s + options.start_s;
-    let until_s = options.duration_s.map(|d| from_s + d);
+    let until_s = options.duration_s.map(|d| first_s + options.start_s + d);
+    // A scan's step 0 precedes the chunk that carries it: from the recording's start nothing may
+    // be held back, or the first scan of a scanner goes missing whenever its step 0 came before
+    // the first byte logged.
+    let from_s = if options.start_s > 0.0 {
+        first_s + options.start_s
+    } else {
+        f64::NEG_INFINITY
+    };
     let estimator = FromTime {
         inner: make_estimator(config.as_ref(), &specs),
         from_s,
