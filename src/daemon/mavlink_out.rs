@@ -16,7 +16,8 @@
 //!
 //! "From sigma_v" is `100 * reference_sigma_mps / sigma_v` clamped to 1..=100, where sigma_v is
 //! the largest velocity standard deviation. -1 is what both autopilots treat as "do not use":
-//! PX4 with `EKF2_EV_QMIN >= 1`, ArduPilot with `VISO_QUAL_MIN >= 0` (its default). The
+//! PX4 with `EKF2_EV_QMIN >= 1`, ArduPilot with `VISO_QUAL_MIN >= 0` (its default); quality 0
+//! ("not to be used": not converged, or an axis unobserved) needs `VISO_QUAL_MIN = 1`. The
 //! confidence of VISION_POSITION_DELTA is the same number with -1 mapped to 0; ArduPilot turns it
 //! into `velErr = VERR_MIN + (VERR_MAX - VERR_MIN) (1 - conf/100)`, so with
 //! `EK3_VIS_VERR_MAX >= 1` a confidence of 0 keeps EKF3 from starting body-odometry aiding.

@@ -1,6 +1,7 @@
-//! The recorder runs on its own thread: sensor tasks hand it their bytes without waiting (a
-//! full queue drops the chunk and counts it, it never stalls a sensor reader), and file writes
-//! and flushes never run on the tokio workers.
+//! The recorder runs on its own thread: the fusion thread hands it each chunk after consuming it,
+//! so that the recording's order is the order replay must follow, without waiting (a full queue
+//! drops the chunk and counts it, it never stalls the fusion), and file writes and flushes never
+//! run on the tokio workers.
 
 use super::recording::{Direction, Encoding, Recorder, RecordingError};
 use std::io::{Seek, Write};
@@ -23,7 +24,7 @@ pub struct Tap {
     pub data: Vec<u8>,
 }
 
-/// Cloneable handle the sensor tasks record through.
+/// Cloneable handle the fusion thread records through.
 #[derive(Debug, Clone)]
 pub struct RecorderHandle {
     queue: SyncSender<Tap>,
