@@ -311,36 +311,6 @@ impl Estimator for EventTrace {
     }
 }
 
-/// Counts what arrives; the estimator of `run` and `replay` until `Fusion` is connected.
-#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
-pub struct EventCounter {
-    pub geometries: u64,
-    pub imu_samples: u64,
-    pub scans: u64,
-    pub stale_marks: u64,
-}
-
-impl Estimator for EventCounter {
-    type Epoch = ();
-    fn geometry(&mut self, _: usize, _: ScannerGeometry) {
-        self.geometries += 1;
-    }
-    fn imu(&mut self, _: ImuSample) -> Option<Estimate> {
-        self.imu_samples += 1;
-        None
-    }
-    fn scan(&mut self, _: Scan) -> Option<()> {
-        self.scans += 1;
-        None
-    }
-    fn sensor_stale(&mut self, _: usize, stale: bool, _: f64) {
-        self.stale_marks += u64::from(stale);
-    }
-    fn epoch_counts(_: &()) -> EpochCounts {
-        EpochCounts::default()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
