@@ -33,7 +33,7 @@ fn md_stream(scans: usize) -> Vec<u8> {
         sensor.push_scan(i as u32 * 25, &ranges, None).unwrap();
     }
     let mut bytes = Vec::new();
-    sensor.take_output(&mut bytes);
+    sensor.drain_output(&mut bytes);
     let ack_end = bytes.windows(2).position(|w| w == b"\n\n").unwrap() + 2;
     bytes.drain(..ack_end);
     bytes

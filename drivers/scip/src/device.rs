@@ -1,18 +1,16 @@
 //! Sans-IO device state machine following urg_library's connection sequence (docs/protocols.md, 1.9
 //! "Start-up sequence"): probe with QT (recovering from SCIP 1.1, TM adjust mode or a running
 //! stream), read VV and PP, sample the sensor clock with TM0/TM1/TM2, switch the laser on with BM,
-//! then stream MD/ME.
-//!
-//! The caller moves bytes and time: `handle_input(now, bytes)`, `poll_transmit(now)`,
-//! `poll_event()`, `poll_timeout()` / `handle_timeout(now)`. `now` is host monotonic seconds.
+//! then stream MD/ME. The contract is in the crate documentation.
 
 use std::collections::VecDeque;
 use std::fmt;
+use std::time::Duration;
 
 use crate::command::{Command, DataKind, StepRange, TimeMode};
-use crate::decoder::{Body, DecodeError, Decoder, Reply, ScanData, Status};
+use crate::decoder::{Body, DecodeError, Reply, Status};
 use crate::params::{ParameterError, Parameters, Version};
-use crate::timestamp::TimestampUnwrapper;
+use crate::receiver::{self, Received};
 
 /// What the device is doing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,10 +46,10 @@ pub struct DeviceConfig {
     pub scan_count: u8,
     /// TM1 round trips taken at start-up for clock alignment (0 skips TM entirely).
     pub clock_samples: u8,
-    /// Seconds to wait for a command's reply.
-    pub reply_timeout: f64,
-    /// Seconds without a scan before the stream is declared stalled and restarted.
-    pub stream_timeout: f64,
+    /// How long to wait for a command's reply, from when it was transmitted.
+    pub reply_timeout: Duration,
+    /// Time without a scan before the stream is declared stalled and restarted.
+    pub stream_timeout: Duration,
     /// QT probes sent before giving up on a silent sensor.
     pub probe_attempts: u8,
 }
@@ -65,8 +63,8 @@ impl Default for DeviceConfig {
             interval: 0,
             scan_count: 0,
             clock_samples: 5,
-            reply_timeout: 1.0,
-            stream_timeout: 1.0,
+            reply_timeout: Duration::from_secs(1),
+            stream_timeout: Duration::from_secs(1),
             probe_attempts: 3,
         }
     }
@@ -83,25 +81,25 @@ pub enum Detection {
     StreamRunning,
 }
 
-/// One TM1 round trip: host send and receive times bracket the sensor's counter reading.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// One TM1 reply: the sensor's counter, read just before the reply was sent.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ClockSample {
-    pub host_send: f64,
-    pub host_receive: f64,
+    /// `now` of the `handle_input` call that completed the reply.
+    pub received: Duration,
     pub sensor_ms: u32,
     /// `sensor_ms` on the same unwrapped scale as [`Scan::timestamp_ms`].
     pub sensor_ms_unwrapped: u64,
 }
 
-/// One streamed scan. Hand it back with [`Device::recycle`] to reuse its buffers.
+/// One scan reply (MD/ME/MS streamed, or GD/GE/GS).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scan {
     /// Sensor time of step 0 of this revolution, unwrapped, ms; step k was measured
     /// `k * 60 / (SCAN * ARES)` s later (docs/protocols.md, 1.7 "Timestamps").
     pub timestamp_ms: u64,
     pub raw_timestamp: u32,
-    /// Host time when the reply's last byte arrived.
-    pub host_receive: f64,
+    /// `now` of the `handle_input` call that completed the reply.
+    pub received: Duration,
     pub data: DataKind,
     pub range: StepRange,
     /// Scans still to come for a finite stream (0 for unlimited).
@@ -115,14 +113,14 @@ pub struct Scan {
 #[derive(Debug, Clone, PartialEq)]
 pub enum DeviceError {
     /// No reply within `reply_timeout` while in `phase`.
-    Timeout {
-        phase: Phase,
-    },
+    Timeout { phase: Phase },
     /// A command was refused.
     Status {
         command: &'static str,
         status: Status,
     },
+    /// A PP reply that does not parse (reported by the receiver in any phase; fatal while
+    /// reading parameters).
     BadParameters(ParameterError),
     /// No scan within `stream_timeout`; the device restarts from probing.
     StreamStalled,
@@ -144,16 +142,22 @@ impl fmt::Display for DeviceError {
 
 impl std::error::Error for DeviceError {}
 
-/// What the device tells its owner.
+/// What the device (or a bare [`Receiver`](crate::Receiver)) tells its owner.
+///
+/// Data events, from the receiver in every phase: `Parameters`, `ClockSample`, `Scan`,
+/// `DecodeError`, and `Error(BadParameters)`. The others come from the device's handshake.
 #[derive(Debug, Clone, PartialEq)]
-pub enum DeviceEvent {
+pub enum Event {
     Detected(Detection),
     Version(Version),
+    /// A PP reply that parsed.
     Parameters(Parameters),
+    /// A TM1 reply.
     ClockSample(ClockSample),
     StreamStarted {
         command: Command,
     },
+    /// A scan reply, whether or not it belongs to the stream the device started.
     Scan(Scan),
     /// A finite stream delivered its last scan.
     StreamEnded,
@@ -166,17 +170,21 @@ pub enum DeviceEvent {
 /// Counters for health reporting.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DeviceStats {
+    /// Replies that decoded, of any kind.
     pub replies: u64,
+    /// Scan replies, whether or not they belong to the stream the device started.
     pub scans: u64,
     pub decode_errors: u64,
     pub status_errors: u64,
     pub restarts: u64,
 }
 
-/// SCIP 2.0 device driver without I/O.
+/// SCIP 2.0 device driver without I/O: the handshake around a [`Receiver`](crate::Receiver)'s
+/// decoding.
 #[derive(Debug)]
 pub struct Device {
-    decoder: Decoder,
+    /// Never reset or bypassed: every received byte goes through it, in every phase.
+    receiver: receiver::Core,
     inner: Inner,
 }
 
@@ -186,102 +194,85 @@ struct Inner {
     phase: Phase,
     outgoing: Vec<u8>,
     transmitted: Vec<u8>,
-    awaiting_since: Option<f64>,
-    deadline: Option<f64>,
+    deadline: Option<Duration>,
     probes_sent: u8,
     stream_seen: bool,
     clock_samples_left: u8,
-    last_send: f64,
     stream: Option<Command>,
     stream_prefix: Vec<u8>,
     parameters: Option<Parameters>,
-    unwrapper: TimestampUnwrapper,
-    events: VecDeque<DeviceEvent>,
-    spare: Vec<(Vec<u32>, Vec<u32>)>,
+    /// Shared with the receiver, so that data and handshake events keep their order.
+    events: VecDeque<Event>,
     stats: DeviceStats,
 }
 
 impl Device {
-    pub fn new(config: DeviceConfig) -> Self {
-        Device {
-            decoder: Decoder::new(),
+    /// Starts the connection sequence at `now` with a QT probe.
+    pub fn new(config: DeviceConfig, now: Duration) -> Self {
+        let mut device = Device {
+            receiver: receiver::Core::default(),
             inner: Inner {
                 config,
                 phase: Phase::Idle,
                 outgoing: Vec::with_capacity(64),
                 transmitted: Vec::with_capacity(64),
-                awaiting_since: None,
                 deadline: None,
                 probes_sent: 0,
                 stream_seen: false,
                 clock_samples_left: 0,
-                last_send: 0.0,
                 stream: None,
                 stream_prefix: Vec::with_capacity(16),
                 parameters: None,
-                unwrapper: TimestampUnwrapper::new(),
                 events: VecDeque::with_capacity(16),
-                spare: Vec::new(),
                 stats: DeviceStats::default(),
             },
-        }
+        };
+        device.restart(now);
+        device
     }
 
-    /// Begins (or restarts) the connection sequence with a QT probe.
-    pub fn start(&mut self) {
-        self.decoder.reset();
-        self.inner.probe_from_scratch();
+    /// Runs the connection sequence again from a QT probe. Bytes already received keep their
+    /// place: a reply cut by the restart costs only itself.
+    pub fn restart(&mut self, now: Duration) {
+        self.inner.probe_from_scratch(now);
     }
 
-    /// Stops streaming and switches the laser off; [`DeviceEvent::Stopped`] follows.
-    pub fn stop(&mut self) {
-        self.inner.send(Command::Quit, Phase::Stopping);
+    /// Stops streaming and switches the laser off; [`Event::Stopped`] follows.
+    pub fn stop(&mut self, now: Duration) {
+        self.inner.send(now, Command::Quit, Phase::Stopping);
     }
 
     /// Feeds bytes read from the sensor at host time `now`.
-    pub fn handle_input(&mut self, now: f64, mut bytes: &[u8]) {
+    pub fn handle_input(&mut self, now: Duration, mut bytes: &[u8]) {
         while !bytes.is_empty() {
-            let used = self.decoder.push(bytes);
-            bytes = &bytes[used..];
-            match self.decoder.reply() {
-                Some(Ok(reply)) => self.inner.on_reply(now, reply),
-                Some(Err(error)) => {
-                    self.inner.stats.decode_errors += 1;
-                    self.inner.events.push_back(DeviceEvent::DecodeError(error));
-                }
-                None => {}
+            let received = self
+                .receiver
+                .next_reply(now, &mut bytes, &mut self.inner.events);
+            if let Some(received) = received {
+                self.inner.on_reply(now, received);
             }
         }
     }
 
-    /// Bytes to write to the sensor now, if any.
-    pub fn poll_transmit(&mut self, now: f64) -> Option<&[u8]> {
+    /// Bytes to write to the sensor at `now`, if any.
+    pub fn poll_transmit(&mut self, now: Duration) -> Option<&[u8]> {
         self.inner.poll_transmit(now)
     }
 
-    pub fn poll_event(&mut self) -> Option<DeviceEvent> {
+    /// Drain after every call that takes `now`: undrained events accumulate.
+    pub fn poll_event(&mut self) -> Option<Event> {
         self.inner.events.pop_front()
     }
 
     /// Host time at which [`Device::handle_timeout`] must be called.
-    pub fn poll_timeout(&self) -> Option<f64> {
+    pub fn poll_timeout(&self) -> Option<Duration> {
         self.inner.deadline
     }
 
-    pub fn handle_timeout(&mut self, now: f64) {
+    pub fn handle_timeout(&mut self, now: Duration) {
         if self.inner.deadline.is_some_and(|deadline| now >= deadline) {
             self.inner.deadline = None;
-            self.inner.on_timeout();
-            if self.inner.phase == Phase::Probing {
-                self.decoder.reset();
-            }
-        }
-    }
-
-    /// Returns a scan's buffers for reuse by later scans.
-    pub fn recycle(&mut self, scan: Scan) {
-        if self.inner.spare.len() < 8 {
-            self.inner.spare.push((scan.ranges_mm, scan.intensities));
+            self.inner.on_timeout(now);
         }
     }
 
@@ -289,13 +280,19 @@ impl Device {
         self.inner.phase
     }
 
-    /// The PP reply, once read.
+    /// The PP reply read by the handshake.
     pub fn parameters(&self) -> Option<&Parameters> {
         self.inner.parameters.as_ref()
     }
 
     pub fn stats(&self) -> DeviceStats {
-        self.inner.stats
+        let received = self.receiver.stats();
+        DeviceStats {
+            replies: received.replies,
+            scans: received.scans,
+            decode_errors: received.decode_errors,
+            ..self.inner.stats
+        }
     }
 }
 
@@ -304,13 +301,14 @@ fn status_is(reply: &Reply<'_>, accepted: &[&[u8; 2]]) -> bool {
 }
 
 impl Inner {
-    fn probe_from_scratch(&mut self) {
+    fn probe_from_scratch(&mut self, now: Duration) {
         self.probes_sent = 0;
         self.stream_seen = false;
-        self.send(Command::Quit, Phase::Probing);
+        self.send(now, Command::Quit, Phase::Probing);
     }
 
-    fn send(&mut self, command: Command, phase: Phase) {
+    /// Queues `command`; its reply timeout runs from now, and again from its transmission.
+    fn send(&mut self, now: Duration, command: Command, phase: Phase) {
         self.outgoing.clear();
         if let Err(error) = command.encode(&mut self.outgoing) {
             self.fail(DeviceError::BadConfig(error));
@@ -320,17 +318,15 @@ impl Inner {
             self.probes_sent += 1;
         }
         self.phase = phase;
-        self.deadline = None;
+        self.deadline = Some(now + self.config.reply_timeout);
     }
 
-    fn poll_transmit(&mut self, now: f64) -> Option<&[u8]> {
+    fn poll_transmit(&mut self, now: Duration) -> Option<&[u8]> {
         if self.outgoing.is_empty() {
             return None;
         }
         std::mem::swap(&mut self.outgoing, &mut self.transmitted);
         self.outgoing.clear();
-        self.last_send = now;
-        self.awaiting_since = Some(now);
         self.deadline = Some(now + self.config.reply_timeout);
         Some(&self.transmitted)
     }
@@ -339,30 +335,34 @@ impl Inner {
         if matches!(error, DeviceError::Status { .. }) {
             self.stats.status_errors += 1;
         }
-        self.events.push_back(DeviceEvent::Error(error));
+        self.events.push_back(Event::Error(error));
+        self.halt();
+    }
+
+    /// Fails without an event of its own, for an error the receiver already reported.
+    fn halt(&mut self) {
         self.phase = Phase::Failed;
         self.deadline = None;
         self.outgoing.clear();
     }
 
-    fn on_timeout(&mut self) {
+    fn on_timeout(&mut self, now: Duration) {
         match self.phase {
+            // A reply cut short needs no reset: the receiver resynchronises at the next empty
+            // line, at worst swallowing the reply to this probe, which the next one makes up for.
             Phase::Probing if self.probes_sent < self.config.probe_attempts => {
-                self.outgoing.clear();
-                Command::Quit.encode(&mut self.outgoing).ok();
-                self.probes_sent += 1;
+                self.send(now, Command::Quit, Phase::Probing);
             }
             Phase::Streaming => {
                 self.events
-                    .push_back(DeviceEvent::Error(DeviceError::StreamStalled));
+                    .push_back(Event::Error(DeviceError::StreamStalled));
                 self.stats.restarts += 1;
-                self.probe_from_scratch();
+                self.probe_from_scratch(now);
             }
             Phase::Stopping => {
-                self.events
-                    .push_back(DeviceEvent::Error(DeviceError::Timeout {
-                        phase: Phase::Stopping,
-                    }));
+                self.events.push_back(Event::Error(DeviceError::Timeout {
+                    phase: Phase::Stopping,
+                }));
                 self.phase = Phase::Stopped;
             }
             Phase::Idle | Phase::Stopped | Phase::Failed => {}
@@ -377,26 +377,30 @@ impl Inner {
         });
     }
 
-    fn on_reply(&mut self, now: f64, reply: Reply<'_>) {
-        self.stats.replies += 1;
+    fn on_reply(&mut self, now: Duration, received: Received<'_>) {
+        let Received { reply, parameters } = received;
         let command = reply.command();
         match self.phase {
-            Phase::Probing => self.on_probe_reply(&reply),
-            Phase::SwitchingProtocol if command == b"SCIP2.0" => self.probe_from_scratch(),
-            Phase::LeavingTimeMode if command == b"TM2" => self.probe_from_scratch(),
+            Phase::Probing => self.on_probe_reply(now, &reply),
+            Phase::SwitchingProtocol if command == b"SCIP2.0" => self.probe_from_scratch(now),
+            Phase::LeavingTimeMode if command == b"TM2" => self.probe_from_scratch(now),
             Phase::ReadingVersion if command == b"VV" => match reply.body {
                 Body::Info(info) => {
                     self.events
-                        .push_back(DeviceEvent::Version(Version::from_info(&info)));
-                    self.send(Command::Parameters, Phase::ReadingParameters);
+                        .push_back(Event::Version(Version::from_info(&info)));
+                    self.send(now, Command::Parameters, Phase::ReadingParameters);
                 }
                 _ => self.refuse("VV", &reply),
             },
-            Phase::ReadingParameters if command == b"PP" => self.on_parameters(&reply),
+            Phase::ReadingParameters if command == b"PP" => match parameters {
+                Some(Ok(parameters)) => self.on_parameters(now, parameters),
+                Some(Err(_)) => self.halt(),
+                None => self.refuse("PP", &reply),
+            },
             Phase::EnteringClockMode if command == b"TM0" => {
                 if status_is(&reply, &[b"00", b"02"]) {
                     self.clock_samples_left = self.config.clock_samples;
-                    self.send(Command::Time(TimeMode::Request), Phase::SamplingClock);
+                    self.send(now, Command::Time(TimeMode::Request), Phase::SamplingClock);
                 } else {
                     self.refuse("TM0", &reply);
                 }
@@ -404,14 +408,14 @@ impl Inner {
             Phase::SamplingClock if command == b"TM1" => self.on_clock_sample(now, &reply),
             Phase::LeavingClockMode if command == b"TM2" => {
                 if status_is(&reply, &[b"00", b"03"]) {
-                    self.send(Command::LaserOn, Phase::SwitchingLaserOn);
+                    self.send(now, Command::LaserOn, Phase::SwitchingLaserOn);
                 } else {
                     self.refuse("TM2", &reply);
                 }
             }
             Phase::SwitchingLaserOn if command == b"BM" => {
                 if status_is(&reply, &[b"00", b"02"]) {
-                    self.start_stream();
+                    self.start_stream(now);
                 } else {
                     self.refuse("BM", &reply);
                 }
@@ -421,14 +425,15 @@ impl Inner {
             Phase::Stopping if command == b"QT" => {
                 self.phase = Phase::Stopped;
                 self.deadline = None;
-                self.events.push_back(DeviceEvent::Stopped);
+                self.events.push_back(Event::Stopped);
             }
-            // Late replies to earlier commands and scans still in flight are dropped.
+            // Late replies to earlier commands and scans still in flight need no reaction (the
+            // receiver has already reported what they carry).
             _ => {}
         }
     }
 
-    fn on_probe_reply(&mut self, reply: &Reply<'_>) {
+    fn on_probe_reply(&mut self, now: Duration, reply: &Reply<'_>) {
         if reply.command() != b"QT" {
             // QT is already on its way; the sensor answers it after the scan in flight.
             let streaming =
@@ -436,60 +441,47 @@ impl Inner {
             if streaming && !self.stream_seen {
                 self.stream_seen = true;
                 self.events
-                    .push_back(DeviceEvent::Detected(Detection::StreamRunning));
+                    .push_back(Event::Detected(Detection::StreamRunning));
             }
             return;
         }
         match reply.status {
             Status::Scip11(_) => {
-                self.events
-                    .push_back(DeviceEvent::Detected(Detection::Scip11));
-                self.send(Command::Scip2, Phase::SwitchingProtocol);
+                self.events.push_back(Event::Detected(Detection::Scip11));
+                self.send(now, Command::Scip2, Phase::SwitchingProtocol);
             }
             Status::Code([b'0', b'E']) => {
                 self.events
-                    .push_back(DeviceEvent::Detected(Detection::TimeAdjustMode));
-                self.send(Command::Time(TimeMode::Leave), Phase::LeavingTimeMode);
+                    .push_back(Event::Detected(Detection::TimeAdjustMode));
+                self.send(now, Command::Time(TimeMode::Leave), Phase::LeavingTimeMode);
             }
-            status if status.is_ok() => self.send(Command::Version, Phase::ReadingVersion),
+            status if status.is_ok() => self.send(now, Command::Version, Phase::ReadingVersion),
             _ => self.refuse("QT", reply),
         }
     }
 
-    fn on_parameters(&mut self, reply: &Reply<'_>) {
-        let Body::Info(info) = reply.body else {
-            return self.refuse("PP", reply);
-        };
-        match Parameters::from_info(&info) {
-            Ok(parameters) => {
-                self.events
-                    .push_back(DeviceEvent::Parameters(parameters.clone()));
-                self.parameters = Some(parameters);
-                if self.config.clock_samples > 0 {
-                    self.send(Command::Time(TimeMode::Enter), Phase::EnteringClockMode);
-                } else {
-                    self.send(Command::LaserOn, Phase::SwitchingLaserOn);
-                }
-            }
-            Err(error) => self.fail(DeviceError::BadParameters(error)),
+    fn on_parameters(&mut self, now: Duration, parameters: Parameters) {
+        self.parameters = Some(parameters);
+        if self.config.clock_samples > 0 {
+            self.send(
+                now,
+                Command::Time(TimeMode::Enter),
+                Phase::EnteringClockMode,
+            );
+        } else {
+            self.send(now, Command::LaserOn, Phase::SwitchingLaserOn);
         }
     }
 
-    fn on_clock_sample(&mut self, now: f64, reply: &Reply<'_>) {
-        let Body::Time(sensor_ms) = reply.body else {
+    fn on_clock_sample(&mut self, now: Duration, reply: &Reply<'_>) {
+        if !matches!(reply.body, Body::Time(_)) {
             return self.refuse("TM1", reply);
-        };
-        self.events.push_back(DeviceEvent::ClockSample(ClockSample {
-            host_send: self.last_send,
-            host_receive: now,
-            sensor_ms,
-            sensor_ms_unwrapped: self.unwrapper.unwrap(sensor_ms),
-        }));
+        }
         self.clock_samples_left = self.clock_samples_left.saturating_sub(1);
         if self.clock_samples_left > 0 {
-            self.send(Command::Time(TimeMode::Request), Phase::SamplingClock);
+            self.send(now, Command::Time(TimeMode::Request), Phase::SamplingClock);
         } else {
-            self.send(Command::Time(TimeMode::Leave), Phase::LeavingClockMode);
+            self.send(now, Command::Time(TimeMode::Leave), Phase::LeavingClockMode);
         }
     }
 
@@ -510,10 +502,10 @@ impl Inner {
         }
     }
 
-    fn start_stream(&mut self) {
+    fn start_stream(&mut self, now: Duration) {
         let command = self.stream_command();
         self.stream = Some(command);
-        self.send(command, Phase::StartingStream);
+        self.send(now, command, Phase::StartingStream);
         // Echo minus the two-digit count and LF, kept to match every scan without re-encoding.
         self.stream_prefix.clear();
         let prefix_len = self.outgoing.len().saturating_sub(3);
@@ -527,7 +519,7 @@ impl Inner {
         echo.len() == self.stream_prefix.len() + 2 && echo.starts_with(&self.stream_prefix)
     }
 
-    fn on_stream_ack(&mut self, now: f64, reply: &Reply<'_>) {
+    fn on_stream_ack(&mut self, now: Duration, reply: &Reply<'_>) {
         if !self.is_our_stream(reply) {
             return;
         }
@@ -535,14 +527,13 @@ impl Inner {
             self.phase = Phase::Streaming;
             self.deadline = Some(now + self.config.stream_timeout);
             let command = self.stream.unwrap_or(Command::Quit);
-            self.events
-                .push_back(DeviceEvent::StreamStarted { command });
+            self.events.push_back(Event::StreamStarted { command });
         } else {
             self.refuse("MD/ME", reply);
         }
     }
 
-    fn on_stream_reply(&mut self, now: f64, reply: &Reply<'_>) {
+    fn on_stream_reply(&mut self, now: Duration, reply: &Reply<'_>) {
         if !self.is_our_stream(reply) {
             return;
         }
@@ -550,41 +541,19 @@ impl Inner {
             // 0M ("unstable") and similar mid-stream statuses skip one scan; a real stop shows
             // up as a stall and restarts the sequence.
             self.stats.status_errors += 1;
-            self.events
-                .push_back(DeviceEvent::Error(DeviceError::Status {
-                    command: "MD/ME",
-                    status: reply.status,
-                }));
+            self.events.push_back(Event::Error(DeviceError::Status {
+                command: "MD/ME",
+                status: reply.status,
+            }));
             return;
         };
         self.deadline = Some(now + self.config.stream_timeout);
-        let event = self.scan_event(now, &scan);
-        let finished = event.remaining == 0
-            && matches!(self.stream, Some(Command::Stream { count, .. }) if count > 0);
-        self.stats.scans += 1;
-        self.events.push_back(DeviceEvent::Scan(event));
-        if finished {
+        let remaining = scan.stream.map_or(0, |s| s.remaining);
+        let finite = matches!(self.stream, Some(Command::Stream { count, .. }) if count > 0);
+        if remaining == 0 && finite {
             self.phase = Phase::Idle;
             self.deadline = None;
-            self.events.push_back(DeviceEvent::StreamEnded);
-        }
-    }
-
-    fn scan_event(&mut self, now: f64, scan: &ScanData<'_>) -> Scan {
-        let (mut ranges_mm, mut intensities) = self.spare.pop().unwrap_or_default();
-        ranges_mm.clear();
-        ranges_mm.extend_from_slice(scan.ranges);
-        intensities.clear();
-        intensities.extend_from_slice(scan.intensities);
-        Scan {
-            timestamp_ms: self.unwrapper.unwrap(scan.timestamp),
-            raw_timestamp: scan.timestamp,
-            host_receive: now,
-            data: scan.data,
-            range: scan.range,
-            remaining: scan.stream.map_or(0, |s| s.remaining),
-            ranges_mm,
-            intensities,
+            self.events.push_back(Event::StreamEnded);
         }
     }
 }

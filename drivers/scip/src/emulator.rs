@@ -190,7 +190,7 @@ impl Emulator {
     }
 
     /// Bytes the sensor has sent since the last call, appended to `out`.
-    pub fn take_output(&mut self, out: &mut Vec<u8>) {
+    pub fn drain_output(&mut self, out: &mut Vec<u8>) {
         out.extend_from_slice(&self.output);
         self.output.clear();
     }

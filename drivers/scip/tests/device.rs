@@ -1,35 +1,52 @@
 //! The device state machine driven against the emulator, including the recovery paths.
 
+use std::time::Duration;
+
+use scip::encoding::push_summed_line;
 use scip::{
-    DataKind, Detection, Device, DeviceConfig, DeviceError, DeviceEvent, Emulator, Model, Phase,
-    Status,
+    DataKind, Detection, Device, DeviceConfig, DeviceError, Emulator, Event, Model, Phase,
+    Receiver, Status,
 };
+
+fn ms(n: u64) -> Duration {
+    Duration::from_millis(n)
+}
 
 struct Rig {
     device: Device,
     sensor: Emulator,
-    now: f64,
-    events: Vec<DeviceEvent>,
+    now: Duration,
+    events: Vec<Event>,
     link_up: bool,
     wire: Vec<u8>,
+    /// Every `handle_input` call the device got, for replaying into a bare receiver.
+    received: Vec<(Duration, Vec<u8>)>,
 }
 
 impl Rig {
+    /// The device starts its handshake at once; nothing moves until `exchange`.
     fn new(model: Model, config: DeviceConfig) -> Rig {
         let mut sensor = Emulator::new(model);
         sensor.set_clock(100_000);
+        let now = ms(100_000);
         Rig {
-            device: Device::new(config),
+            device: Device::new(config, now),
             sensor,
-            now: 100.0,
+            now,
             events: Vec::new(),
             link_up: true,
             wire: Vec::new(),
+            received: Vec::new(),
         }
     }
 
+    fn input(&mut self, bytes: &[u8]) {
+        self.device.handle_input(self.now, bytes);
+        self.received.push((self.now, bytes.to_vec()));
+    }
+
     /// Moves bytes both ways until the link is quiet, then advances time by `dt`.
-    fn exchange(&mut self, dt: f64) {
+    fn exchange(&mut self, dt: Duration) {
         for _ in 0..50 {
             let mut moved = false;
             while let Some(bytes) = self.device.poll_transmit(self.now) {
@@ -39,12 +56,12 @@ impl Rig {
                 }
             }
             self.wire.clear();
-            self.sensor.take_output(&mut self.wire);
+            self.sensor.drain_output(&mut self.wire);
             if !self.wire.is_empty() && self.link_up {
                 moved = true;
                 // Deliver in odd-sized chunks, as a serial port would.
-                for chunk in self.wire.chunks(7) {
-                    self.device.handle_input(self.now, chunk);
+                for chunk in std::mem::take(&mut self.wire).chunks(7) {
+                    self.input(chunk);
                 }
             }
             while let Some(event) = self.device.poll_event() {
@@ -55,7 +72,7 @@ impl Rig {
             }
         }
         self.now += dt;
-        self.sensor.set_clock((self.now * 1000.0) as u32);
+        self.sensor.set_clock(self.now.as_millis() as u32);
         if self.device.poll_timeout().is_some_and(|t| t <= self.now) {
             self.device.handle_timeout(self.now);
         }
@@ -65,7 +82,7 @@ impl Rig {
         let steps = self.sensor.model().step_count();
         let ranges: Vec<u32> = (0..steps as u32).map(|i| value + i).collect();
         let intensities: Vec<u32> = (0..steps as u32).map(|i| 100 + i).collect();
-        let time = (self.now * 1000.0) as u32;
+        let time = self.now.as_millis() as u32;
         self.sensor
             .push_scan(time, &ranges, Some(&intensities))
             .unwrap();
@@ -75,7 +92,7 @@ impl Rig {
         self.events
             .iter()
             .filter_map(|e| match e {
-                DeviceEvent::Scan(scan) => Some(scan),
+                Event::Scan(scan) => Some(scan),
                 _ => None,
             })
             .collect()
@@ -85,7 +102,7 @@ impl Rig {
         self.events
             .iter()
             .filter_map(|e| match e {
-                DeviceEvent::Detected(d) => Some(*d),
+                Event::Detected(d) => Some(*d),
                 _ => None,
             })
             .collect()
@@ -93,9 +110,8 @@ impl Rig {
 }
 
 fn start_and_stream(rig: &mut Rig, scans: u32) {
-    rig.device.start();
     for _ in 0..40 {
-        rig.exchange(0.005);
+        rig.exchange(ms(5));
     }
     assert_eq!(
         rig.device.phase(),
@@ -105,7 +121,7 @@ fn start_and_stream(rig: &mut Rig, scans: u32) {
     );
     for i in 0..scans {
         rig.push_scan(1000 + i);
-        rig.exchange(0.025);
+        rig.exchange(ms(25));
     }
 }
 
@@ -128,18 +144,15 @@ fn utm_streams_me_with_parameters_clock_samples_and_clean_stop() {
         .events
         .iter()
         .filter_map(|e| match e {
-            DeviceEvent::ClockSample(s) => Some(*s),
+            Event::ClockSample(s) => Some(*s),
             _ => None,
         })
         .collect();
     assert_eq!(samples.len(), 3);
     for s in &samples {
-        assert!(s.host_send <= s.host_receive);
         // The emulator's clock follows host time in ms, set at each exchange.
-        assert!(
-            (f64::from(s.sensor_ms) / 1000.0 - s.host_send).abs() < 0.011,
-            "{s:?}"
-        );
+        assert_eq!(u128::from(s.sensor_ms), s.received.as_millis(), "{s:?}");
+        assert_eq!(u64::from(s.sensor_ms), s.sensor_ms_unwrapped);
     }
     let scans = rig.scans();
     assert_eq!(scans.len(), 4);
@@ -152,10 +165,10 @@ fn utm_streams_me_with_parameters_clock_samples_and_clean_stop() {
         .all(|w| w[1].timestamp_ms > w[0].timestamp_ms));
     assert!(!rig.detections().contains(&Detection::StreamRunning));
 
-    rig.device.stop();
-    rig.exchange(0.01);
+    rig.device.stop(rig.now);
+    rig.exchange(ms(10));
     assert_eq!(rig.device.phase(), Phase::Stopped);
-    assert!(rig.events.contains(&DeviceEvent::Stopped));
+    assert!(rig.events.contains(&Event::Stopped));
     assert!(!rig.sensor.is_streaming() && !rig.sensor.is_laser_on());
 }
 
@@ -183,7 +196,10 @@ fn a_sensor_already_streaming_is_stopped_and_restarted() {
     rig.push_scan(500); // a scan in flight when the driver starts
     start_and_stream(&mut rig, 2);
     assert!(rig.detections().contains(&Detection::StreamRunning));
-    assert_eq!(rig.scans().len(), 2);
+    let firsts: Vec<u32> = rig.scans().iter().map(|s| s.ranges_mm[0]).collect();
+    // The scan in flight is data too: a receiver replaying these bytes reports it as well.
+    assert_eq!(firsts, [500, 1000, 1001]);
+    assert_receiver_agrees(&rig);
 }
 
 #[test]
@@ -211,19 +227,16 @@ fn bad_stream_parameters_give_a_typed_status_error() {
         ..DeviceConfig::default()
     };
     let mut rig = Rig::new(Model::utm_30lx(), config);
-    rig.device.start();
     for _ in 0..40 {
-        rig.exchange(0.005);
+        rig.exchange(ms(5));
     }
     assert_eq!(rig.device.phase(), Phase::Failed);
-    assert!(rig
-        .events
-        .contains(&DeviceEvent::Error(DeviceError::Status {
-            command: "MD/ME",
-            status: Status::Code(*b"04"),
-        })));
+    assert!(rig.events.contains(&Event::Error(DeviceError::Status {
+        command: "MD/ME",
+        status: Status::Code(*b"04"),
+    })));
     let message = rig.events.iter().find_map(|e| match e {
-        DeviceEvent::Error(e) => Some(e.to_string()),
+        Event::Error(e) => Some(e.to_string()),
         _ => None,
     });
     assert!(message.unwrap().contains("status 04"));
@@ -235,23 +248,20 @@ fn silent_sensor_times_out_after_the_configured_probes() {
         Model::utm_30lx(),
         DeviceConfig {
             probe_attempts: 3,
-            reply_timeout: 0.5,
+            reply_timeout: ms(500),
             ..DeviceConfig::default()
         },
     );
     rig.link_up = false;
-    rig.device.start();
     for _ in 0..10 {
-        rig.exchange(0.4);
+        rig.exchange(ms(400));
     }
     assert_eq!(rig.device.phase(), Phase::Failed);
-    assert!(rig
-        .events
-        .contains(&DeviceEvent::Error(DeviceError::Timeout {
-            phase: Phase::Probing
-        })));
+    assert!(rig.events.contains(&Event::Error(DeviceError::Timeout {
+        phase: Phase::Probing
+    })));
     // Three probes at 0.5 s each, not earlier.
-    assert!(rig.now >= 101.5);
+    assert!(rig.now >= ms(101_500));
 }
 
 #[test]
@@ -259,20 +269,20 @@ fn a_stalled_stream_is_reported_and_restarted() {
     let mut rig = Rig::new(
         Model::utm_30lx(),
         DeviceConfig {
-            stream_timeout: 0.3,
+            stream_timeout: ms(300),
             clock_samples: 0,
             ..DeviceConfig::default()
         },
     );
     start_and_stream(&mut rig, 1);
     for _ in 0..4 {
-        rig.exchange(0.1); // no scans pushed: the sensor went quiet
+        rig.exchange(ms(100)); // no scans pushed: the sensor went quiet
     }
     assert!(rig
         .events
-        .contains(&DeviceEvent::Error(DeviceError::StreamStalled)));
+        .contains(&Event::Error(DeviceError::StreamStalled)));
     for _ in 0..10 {
-        rig.exchange(0.005);
+        rig.exchange(ms(5));
     }
     assert_eq!(rig.device.phase(), Phase::Streaming);
     assert_eq!(rig.device.stats().restarts, 1);
@@ -290,11 +300,11 @@ fn corrupted_scan_is_dropped_and_counted() {
     start_and_stream(&mut rig, 1);
     rig.push_scan(2000);
     let mut bytes = Vec::new();
-    rig.sensor.take_output(&mut bytes);
+    rig.sensor.drain_output(&mut bytes);
     bytes[100] ^= 0x01;
-    rig.device.handle_input(rig.now, &bytes);
+    rig.input(&bytes);
     rig.push_scan(3000);
-    rig.exchange(0.025);
+    rig.exchange(ms(25));
     let scans = rig.scans();
     assert_eq!(scans.len(), 2);
     assert_eq!(scans[1].ranges_mm[0], 3000);
@@ -319,7 +329,7 @@ fn timestamps_unwrap_across_the_24_bit_wrap() {
         rig.sensor
             .push_scan(time & (wrap - 1), &ranges, None)
             .unwrap();
-        rig.exchange(0.025);
+        rig.exchange(ms(25));
     }
     let stamps: Vec<u64> = rig.scans().iter().map(|s| s.timestamp_ms).collect();
     let expected: Vec<u64> = (0..6).map(|i| u64::from(wrap) - 75 + 25 * i).collect();
@@ -337,7 +347,147 @@ fn a_finite_stream_counts_down_and_ends() {
     start_and_stream(&mut rig, 5);
     let remaining: Vec<u8> = rig.scans().iter().map(|s| s.remaining).collect();
     assert_eq!(remaining, vec![2, 1, 0]);
-    assert!(rig.events.contains(&DeviceEvent::StreamEnded));
+    assert!(rig.events.contains(&Event::StreamEnded));
     assert_eq!(rig.device.phase(), Phase::Idle);
     assert!(!rig.sensor.is_streaming());
+}
+
+fn is_data(event: &Event) -> bool {
+    matches!(
+        event,
+        Event::Parameters(_)
+            | Event::ClockSample(_)
+            | Event::Scan(_)
+            | Event::DecodeError(_)
+            | Event::Error(DeviceError::BadParameters(_))
+    )
+}
+
+/// A bare receiver fed what the device was fed emits the device's data events, in order.
+fn assert_receiver_agrees(rig: &Rig) {
+    let mut receiver = Receiver::new();
+    let mut replayed = Vec::new();
+    for (now, bytes) in &rig.received {
+        receiver.handle_input(*now, bytes);
+        replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
+    }
+    let live: Vec<&Event> = rig.events.iter().filter(|e| is_data(e)).collect();
+    assert!(!live.is_empty());
+    assert_eq!(live, replayed.iter().collect::<Vec<_>>());
+    let stats = rig.device.stats();
+    let received = receiver.stats();
+    assert_eq!(
+        (stats.replies, stats.scans, stats.decode_errors),
+        (received.replies, received.scans, received.decode_errors)
+    );
+}
+
+#[test]
+fn a_receiver_replaying_the_bytes_reports_the_same_data_as_the_device() {
+    let config = DeviceConfig {
+        data: DataKind::DistanceIntensity,
+        stream_timeout: ms(300),
+        ..DeviceConfig::default()
+    };
+    let mut rig = Rig::new(Model::utm_30lx(), config);
+    rig.sensor.handle_input(b"ME0000108001000\n");
+    rig.push_scan(500); // in flight while probing
+    start_and_stream(&mut rig, 3);
+    // A corrupted scan, then a stall and the restart it causes (clock samples again).
+    rig.push_scan(2000);
+    let mut bytes = Vec::new();
+    rig.sensor.drain_output(&mut bytes);
+    bytes[100] ^= 0x01;
+    rig.input(&bytes);
+    for _ in 0..4 {
+        rig.exchange(ms(100));
+    }
+    for _ in 0..10 {
+        rig.exchange(ms(5));
+    }
+    assert_eq!(rig.device.phase(), Phase::Streaming);
+    rig.push_scan(3000);
+    rig.exchange(ms(25));
+    let count = |f: fn(&Event) -> bool| rig.events.iter().filter(|e| f(e)).count();
+    assert_eq!(count(|e| matches!(e, Event::Parameters(_))), 2);
+    assert_eq!(count(|e| matches!(e, Event::ClockSample(_))), 10);
+    assert_eq!(count(|e| matches!(e, Event::DecodeError(_))), 1);
+    assert_eq!(rig.scans().len(), 5);
+    assert_receiver_agrees(&rig);
+}
+
+#[test]
+fn a_reply_cut_before_a_probe_retry_costs_only_itself() {
+    let mut rig = Rig::new(
+        Model::utm_30lx(),
+        DeviceConfig {
+            clock_samples: 0,
+            reply_timeout: ms(500),
+            ..DeviceConfig::default()
+        },
+    );
+    // The first probe's reply loses its end on the wire; the rest of the exchange is clean.
+    let probe = rig.device.poll_transmit(rig.now).unwrap().to_vec();
+    rig.sensor.handle_input(&probe);
+    let mut reply = Vec::new();
+    rig.sensor.drain_output(&mut reply);
+    rig.input(&reply[..reply.len() - 2]);
+    // The cut reply swallows the next probe's reply; the probe after that gets through.
+    for _ in 0..20 {
+        rig.exchange(ms(300));
+        if rig.device.phase() == Phase::Streaming {
+            break;
+        }
+    }
+    assert_eq!(rig.device.phase(), Phase::Streaming, "{:?}", rig.events);
+    assert_eq!(
+        rig.events[0],
+        Event::DecodeError(scip::DecodeError::BadStatus)
+    );
+    assert_eq!(rig.device.stats().decode_errors, 1);
+    rig.push_scan(1000);
+    rig.exchange(ms(25));
+    assert_eq!(rig.scans().len(), 1);
+    assert_receiver_agrees(&rig);
+}
+
+/// A reply built by hand: echo, status, then summed info lines.
+fn info_reply(echo: &[u8], lines: &[&str]) -> Vec<u8> {
+    let mut out = echo.to_vec();
+    out.push(b'\n');
+    push_summed_line(b"00", &mut out);
+    for line in lines {
+        push_summed_line(line.as_bytes(), &mut out);
+    }
+    out.push(b'\n');
+    out
+}
+
+#[test]
+fn a_pp_reply_that_does_not_parse_is_reported_once_and_fails_only_the_handshake_reading_it() {
+    let now = ms(1);
+    let mut device = Device::new(DeviceConfig::default(), now);
+    let mut receiver = Receiver::new();
+    let bad_pp = info_reply(b"PP", &["MODL:X;", "DMIN:20;"]);
+    let mut feed = |device: &mut Device, bytes: &[u8]| {
+        while device.poll_transmit(now).is_some() {}
+        device.handle_input(now, bytes);
+        receiver.handle_input(now, bytes);
+        let events: Vec<Event> = std::iter::from_fn(|| device.poll_event()).collect();
+        let data: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
+        (events, data)
+    };
+    // While probing, a late PP is only data.
+    let (events, data) = feed(&mut device, &bad_pp);
+    let bad = Event::Error(DeviceError::BadParameters(scip::ParameterError {
+        key: "DMAX",
+    }));
+    assert_eq!((&events, &data), (&vec![bad.clone()], &vec![bad.clone()]));
+    assert_eq!(device.phase(), Phase::Probing);
+    feed(&mut device, b"QT\n00P\n\n");
+    feed(&mut device, &info_reply(b"VV", &["VEND:Hokuyo;"]));
+    assert_eq!(device.phase(), Phase::ReadingParameters);
+    let (events, data) = feed(&mut device, &bad_pp);
+    assert_eq!((&events, &data), (&vec![bad.clone()], &vec![bad]));
+    assert_eq!(device.phase(), Phase::Failed);
 }

@@ -19,7 +19,7 @@ fn urg_with_scan() -> Emulator {
 fn exchange(sensor: &mut Emulator, command: &[u8]) -> Vec<u8> {
     sensor.handle_input(command);
     let mut out = Vec::new();
-    sensor.take_output(&mut out);
+    sensor.drain_output(&mut out);
     out
 }
 
@@ -52,7 +52,7 @@ fn gd_md_me_and_tm1_replies_are_byte_exact() {
     let mut sensor2 = urg_with_scan();
     sensor2.handle_input(b"MD0384038601002\n");
     let mut ack = Vec::new();
-    sensor2.take_output(&mut ack);
+    sensor2.drain_output(&mut ack);
     let ranges = {
         let mut r = vec![0u32; sensor2.model().step_count()];
         r[340..343].copy_from_slice(&[1234, 5432, 20]);
@@ -60,20 +60,20 @@ fn gd_md_me_and_tm1_replies_are_byte_exact() {
     };
     sensor2.push_scan(16_000_000, &ranges, None).unwrap();
     let mut scan = Vec::new();
-    sensor2.take_output(&mut scan);
+    sensor2.drain_output(&mut scan);
     assert_eq!(scan, b"MD0384038601001\n99b\nm2@0?\n0CB1Dh00Df\n\n");
 
     let mut sensor3 = urg_with_scan();
     sensor3.handle_input(b"ME0384038501001\n");
     let mut ignore = Vec::new();
-    sensor3.take_output(&mut ignore);
+    sensor3.drain_output(&mut ignore);
     let mut intensities = vec![0u32; ranges.len()];
     intensities[340..342].copy_from_slice(&[3000, 100]);
     sensor3
         .push_scan(16_000_000, &ranges, Some(&intensities))
         .unwrap();
     let mut me = Vec::new();
-    sensor3.take_output(&mut me);
+    sensor3.drain_output(&mut me);
     assert_eq!(me, b"ME0384038501000\n99b\nm2@0?\n0CB0^h1Dh01Tm\n\n");
 
     let mut sensor4 = Emulator::new(Model::utm_30lx());
@@ -92,7 +92,7 @@ fn stream_counts_down_skips_interval_scans_and_stops() {
     for i in 0..8 {
         sensor.push_scan(i * 25, &ranges, None).unwrap();
     }
-    sensor.take_output(&mut out);
+    sensor.drain_output(&mut out);
     let mut echoes = Vec::new();
     let mut decoder = Decoder::new();
     decoder.feed(&out, |reply| {

@@ -1,9 +1,58 @@
-//! Property tests: encoder-to-decoder round trips, arbitrary bytes never panic, and a corrupted
-//! stream loses only the replies its flipped bytes touch.
+//! Property tests: encoder-to-decoder round trips, arbitrary bytes never panic, a corrupted
+//! stream loses only the replies its flipped bytes touch, and a device and a bare receiver fed
+//! the same bytes report the same data.
+
+use std::time::Duration;
 
 use proptest::prelude::*;
 use scip::encoding::{encode_value, push_data_blocks, push_summed_line};
-use scip::{Body, Command, DataKind, Decoder, Emulator, Model, StepRange};
+use scip::{
+    Body, Command, DataKind, Decoder, Device, DeviceConfig, DeviceError, Emulator, Event, Model,
+    Receiver, StepRange,
+};
+
+/// Replies a UTM-30LX sends in a session, each complete, for mixing with garbage.
+fn session_replies() -> Vec<Vec<u8>> {
+    let mut sensor = Emulator::new(Model::utm_30lx());
+    let mut replies = Vec::new();
+    let take = |sensor: &mut Emulator| {
+        let mut out = Vec::new();
+        sensor.drain_output(&mut out);
+        out
+    };
+    for command in [
+        &b"QT\n"[..],
+        b"VV\n",
+        b"PP\n",
+        b"TM0\n",
+        b"TM1\n",
+        b"TM2\n",
+        b"BM\n",
+    ] {
+        sensor.handle_input(command);
+        replies.push(take(&mut sensor));
+    }
+    sensor.handle_input(b"MD0000108001000\n");
+    replies.push(take(&mut sensor));
+    for i in 0..3u32 {
+        sensor
+            .push_scan(16_777_000 + 300 * i, &[1000 + i; 1081], None)
+            .unwrap();
+        replies.push(take(&mut sensor));
+    }
+    replies
+}
+
+fn is_data(event: &Event) -> bool {
+    matches!(
+        event,
+        Event::Parameters(_)
+            | Event::ClockSample(_)
+            | Event::Scan(_)
+            | Event::DecodeError(_)
+            | Event::Error(DeviceError::BadParameters(_))
+    )
+}
 
 fn data_kind() -> impl Strategy<Value = DataKind> {
     prop_oneof![
@@ -134,13 +183,13 @@ proptest! {
         let mut sensor = Emulator::new(Model::utm_30lx());
         sensor.handle_input(b"MD0000002001000\n");
         let mut bytes = Vec::new();
-        sensor.take_output(&mut bytes);
+        sensor.drain_output(&mut bytes);
         let mut bounds = vec![0usize];
         bounds.push(bytes.len());
         for i in 0..SCANS {
             let ranges: Vec<u32> = (0..1081).map(|s| 1000 + i as u32 + s).collect();
             sensor.push_scan(1000 + 25 * i as u32, &ranges, None).unwrap();
-            sensor.take_output(&mut bytes);
+            sensor.drain_output(&mut bytes);
             bounds.push(bytes.len());
         }
         // Flip one bit in 1% of the bytes.
@@ -203,5 +252,51 @@ proptest! {
         prop_assert!(lost <= damaged);
         prop_assert!(lost == 0 || errors > 0, "losses must be reported as errors");
         prop_assert!(undetected * 20 <= damaged.max(20), "{} undetected of {} damaged", undetected, damaged);
+    }
+
+    /// Whatever the bytes, their chunking, the handshake's phase and its timeouts, the device
+    /// reports exactly the data a bare receiver does, and neither panics.
+    #[test]
+    fn device_and_receiver_report_the_same_data_from_any_bytes(
+        pieces in proptest::collection::vec(
+            prop_oneof![
+                (0usize..11).prop_map(Err),
+                proptest::collection::vec(any::<u8>(), 0..40).prop_map(Ok),
+            ],
+            0..40,
+        ),
+        cuts in proptest::collection::vec(0usize..60_000, 0..30),
+        steps_ms in proptest::collection::vec(0u64..1500, 30),
+    ) {
+        let replies = session_replies();
+        let bytes: Vec<u8> = pieces
+            .iter()
+            .flat_map(|p| match p {
+                Err(i) => replies[*i].clone(),
+                Ok(garbage) => garbage.clone(),
+            })
+            .collect();
+        let mut cuts: Vec<usize> = cuts.into_iter().map(|c| c % (bytes.len() + 1)).collect();
+        cuts.sort_unstable();
+        cuts.push(bytes.len());
+        let mut now = Duration::from_secs(1);
+        let mut device = Device::new(DeviceConfig::default(), now);
+        let mut receiver = Receiver::new();
+        let (mut live, mut replayed) = (Vec::new(), Vec::new());
+        let mut start = 0;
+        for (cut, step) in cuts.into_iter().zip(steps_ms.into_iter().cycle()) {
+            let chunk = &bytes[start..cut];
+            start = cut;
+            while device.poll_transmit(now).is_some() {}
+            device.handle_input(now, chunk);
+            receiver.handle_input(now, chunk);
+            now += Duration::from_millis(step);
+            if device.poll_timeout().is_some_and(|t| t <= now) {
+                device.handle_timeout(now);
+            }
+            live.extend(std::iter::from_fn(|| device.poll_event()).filter(is_data));
+            replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
+        }
+        prop_assert_eq!(live, replayed);
     }
 }

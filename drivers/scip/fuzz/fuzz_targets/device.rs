@@ -1,22 +1,37 @@
 #![no_main]
-//! The device state machine fed arbitrary sensor bytes and timeouts must never panic.
+//! The device state machine fed arbitrary sensor bytes and timeouts must never panic, and a bare
+//! receiver fed the same bytes must emit the same data events.
+
+use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
-use scip::{Device, DeviceConfig};
+use scip::{Device, DeviceConfig, DeviceError, Event, Receiver};
+
+fn is_data(event: &Event) -> bool {
+    matches!(
+        event,
+        Event::Parameters(_)
+            | Event::ClockSample(_)
+            | Event::Scan(_)
+            | Event::DecodeError(_)
+            | Event::Error(DeviceError::BadParameters(_))
+    )
+}
 
 fuzz_target!(|data: &[u8]| {
-    let mut device = Device::new(DeviceConfig::default());
-    device.start();
-    let mut now = 0.0;
+    let mut now = Duration::from_millis(1);
+    let mut device = Device::new(DeviceConfig::default(), now);
+    let mut receiver = Receiver::new();
     for piece in data.split(|&b| b == 0xFF) {
         while device.poll_transmit(now).is_some() {}
         device.handle_input(now, piece);
-        while let Some(event) = device.poll_event() {
-            if let scip::DeviceEvent::Scan(scan) = event {
-                device.recycle(scan);
-            }
-        }
-        now += 0.3;
+        receiver.handle_input(now, piece);
+        let from_device: Vec<Event> = std::iter::from_fn(|| device.poll_event())
+            .filter(is_data)
+            .collect();
+        let from_receiver: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
+        assert_eq!(from_device, from_receiver);
+        now += Duration::from_millis(300);
         if device.poll_timeout().is_some_and(|t| t <= now) {
             device.handle_timeout(now);
         }

@@ -15,7 +15,7 @@ fuzz_target!(|data: &[u8]| {
         sensor.set_clock(i as u32 * 100);
         sensor.push_scan(i as u32 * 100, &ranges, None).unwrap();
         out.clear();
-        sensor.take_output(&mut out);
+        sensor.drain_output(&mut out);
         decoder.feed(&out, |reply| {
             reply.expect("emulator output always decodes");
         });
