@@ -81,8 +81,8 @@ fn measuring_device() -> Device {
     let mut emulator = Emulator::new(EmulatorOptions::mti_g_710());
     let mut bytes = Vec::new();
     for _ in 0..10 {
-        while let Some(t) = device.poll_transmit() {
-            emulator.handle_input(t.as_bytes());
+        while let Some(t) = device.poll_transmit(Duration::ZERO) {
+            emulator.handle_input(t);
         }
         emulator.drain_output(&mut bytes);
         device.handle_input(Duration::ZERO, &bytes);

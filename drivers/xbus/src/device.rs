@@ -1,9 +1,5 @@
-//! Sans-IO device state machine: handshake, configuration check, measurement stream.
-//!
-//! Drive it like quinn-proto: feed received bytes with [`Device::handle_input`], write whatever
-//! [`Device::poll_transmit`] returns, call [`Device::handle_timeout`] once the instant from
-//! [`Device::poll_timeout`] has passed, and drain [`Device::poll_event`]. `now` is any monotonic
-//! time since an epoch the caller chooses.
+//! Sans-IO device state machine: handshake, configuration check, measurement stream. The
+//! contract is in the crate documentation.
 
 use core::fmt;
 use core::time::Duration;
@@ -11,9 +7,10 @@ use std::collections::VecDeque;
 
 use crate::command::{Command, CommandFrame, OutputConfiguration, OutputEntry, EVERY_PACKET};
 use crate::data_id::{CoordinateSystem, DataType, Precision};
-use crate::frame::{mid, FrameError, Framer, FramerStats, DEFAULT_MAX_PAYLOAD};
+use crate::frame::{mid, FrameError, FramerStats, DEFAULT_MAX_PAYLOAD};
 use crate::measurement::Measurement;
 use crate::mtdata2::Mtdata2Error;
+use crate::receiver;
 
 /// SampleTimeFine wraps after one day on MTi-10/100-series devices (incl. MTi-G-700/710).
 pub const ONE_DAY_TICKS: u64 = 864_000_000;
@@ -43,7 +40,7 @@ pub struct DeviceConfig {
     pub imu_output: ImuOutput,
     pub rate_hz: u16,
     pub precision: Precision,
-    /// How long to wait for each acknowledgement.
+    /// How long to wait for each acknowledgement, from when the request was transmitted.
     pub reply_timeout: Duration,
     /// Total tries per request before failing.
     pub attempts: u8,
@@ -248,27 +245,40 @@ pub fn mid_name(m: u8) -> &'static str {
     }
 }
 
-/// One MTData2 message received in measurement.
+/// One MTData2 message, received in any phase.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuMeasurement {
     /// `now` of the `handle_input` call that completed the frame.
     pub received_at: Duration,
-    /// SampleTimeFine unwrapped across wraps (10 kHz ticks, continuing from the first value).
+    /// SampleTimeFine unwrapped across wraps (10 kHz ticks, continuing from the first value
+    /// since creation, the last GoToMeasurementAck or a product code changing the wrap; clamped
+    /// at zero).
     pub sample_time: Option<u64>,
-    /// Packets missing between the previous PacketCounter and this one (mod 65536).
+    /// Packets missing between the previous PacketCounter and this one (mod 65536); 0 for the
+    /// first since creation or the last GoToMeasurementAck.
     pub lost_packets: u16,
     pub data: Measurement,
 }
 
+/// What the device (or a bare [`Receiver`](crate::Receiver)) tells its owner.
+///
+/// Data events, from the receiver in every phase: `ProductCode`, `OutputConfiguration`,
+/// `Measuring`, `Measurement`, `FrameDropped` and `BadMeasurement`. The others come from the
+/// device's handshake.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Event {
     /// The device announced a power-up; it was answered with WakeUpAck and the handshake
     /// restarted.
     WakeUp,
+    /// A ProductCode reply. With [`SampleTimeWrap::FromProductCode`], SampleTimeFine wraps as
+    /// it says from here on.
+    ProductCode(ProductCode),
     Identified(DeviceInfo),
-    /// The device acknowledged exactly the requested output configuration.
-    Configured(OutputConfiguration),
-    /// The device acknowledged GoToMeasurement; measurements follow.
+    /// An OutputConfiguration reply that parses. Its first one after the device requested a
+    /// configuration is the acknowledgement: anything but the request is followed by
+    /// [`Event::Failed`]`(`[`Error::ConfigurationNotApplied`]`)`.
+    OutputConfiguration(OutputConfiguration),
+    /// A GoToMeasurementAck: measurements follow, packets counted afresh.
     Measuring,
     Measurement(ImuMeasurement),
     /// Bytes dropped by the framer (the stream continues).
@@ -291,7 +301,7 @@ pub struct DeviceStats {
     pub measurements: u64,
     pub lost_packets: u64,
     pub bad_measurements: u64,
-    /// Checksum-valid frames that were not expected in the current state.
+    /// Checksum-valid replies other than MTData2 that the handshake did not expect.
     pub ignored_frames: u64,
     pub retries: u64,
 }
@@ -314,45 +324,21 @@ struct Identity {
     product_code: ProductCode,
 }
 
-/// Unwraps SampleTimeFine; small backward steps (GNSS-stamped frames) stay backward steps.
-#[derive(Debug, Clone, Copy)]
-struct SampleClock {
-    modulus: u64,
-    last_raw: Option<u64>,
-    total: u64,
-}
-
-impl SampleClock {
-    fn unwrap(&mut self, raw: u32) -> u64 {
-        let raw = u64::from(raw) % self.modulus;
-        match self.last_raw {
-            None => self.total = raw,
-            Some(last) => {
-                let forward = (raw + self.modulus - last) % self.modulus;
-                if forward <= self.modulus / 2 {
-                    self.total += forward;
-                } else {
-                    self.total = self.total.saturating_sub(self.modulus - forward);
-                }
-            }
-        }
-        self.last_raw = Some(raw);
-        self.total
-    }
-}
-
 const REPLY_CAPACITY: usize = 4 * crate::command::MAX_OUTPUTS;
 
+/// Xbus device driver without I/O: the handshake around a [`Receiver`](crate::Receiver)'s
+/// decoding.
 pub struct Device {
     config: DeviceConfig,
     requested: OutputConfiguration,
-    framer: Framer,
+    /// Never reset or bypassed: every received byte goes through it, in every phase.
+    receiver: receiver::Core,
     phase: Phase,
     pending: Option<Pending>,
     identity: Identity,
-    clock: SampleClock,
-    last_counter: Option<u16>,
-    transmit: VecDeque<CommandFrame>,
+    transmit: VecDeque<Command>,
+    transmitted: Option<CommandFrame>,
+    /// Shared with the receiver, so that data and handshake events keep their order.
     events: VecDeque<Event>,
     stats: DeviceStats,
 }
@@ -364,20 +350,15 @@ impl Device {
         let mut device = Self {
             config,
             requested: config.output_configuration(),
-            framer: Framer::new(config.max_payload),
+            receiver: receiver::Core::new(config.sample_time_wrap, config.max_payload),
             phase: Phase::Handshake,
             pending: None,
             identity: Identity {
                 device_id: 0,
                 product_code: ProductCode::default(),
             },
-            clock: SampleClock {
-                modulus: U32_TICKS,
-                last_raw: None,
-                total: 0,
-            },
-            last_counter: None,
             transmit: VecDeque::with_capacity(4),
+            transmitted: None,
             events: VecDeque::with_capacity(64),
             stats: DeviceStats::default(),
         };
@@ -385,7 +366,7 @@ impl Device {
         device
     }
 
-    /// Forgets the device state and runs the handshake again from GoToConfig.
+    /// Runs the handshake again from GoToConfig. Bytes already received keep their place.
     pub fn restart(&mut self, now: Duration) {
         self.phase = Phase::Handshake;
         self.transmit.clear();
@@ -401,18 +382,26 @@ impl Device {
     }
 
     pub fn stats(&self) -> DeviceStats {
+        let received = self.receiver.stats();
         DeviceStats {
-            framer: self.framer.stats(),
+            framer: received.framer,
+            measurements: received.measurements,
+            lost_packets: received.lost_packets,
+            bad_measurements: received.bad_measurements,
             ..self.stats
         }
     }
 
-    /// The next frame to write to the device.
-    pub fn poll_transmit(&mut self) -> Option<CommandFrame> {
-        self.transmit.pop_front()
+    /// The next frame to write to the device at `now`, if any.
+    pub fn poll_transmit(&mut self, now: Duration) -> Option<&[u8]> {
+        let command = self.transmit.pop_front()?;
+        if let Some(pending) = self.pending.as_mut().filter(|p| p.command == command) {
+            pending.deadline = now + self.config.reply_timeout;
+        }
+        Some(self.transmitted.insert(command.to_frame()).as_bytes())
     }
 
-    /// Drain after every `handle_input` and `handle_timeout`: undrained events accumulate.
+    /// Drain after every call that takes `now`: undrained events accumulate.
     pub fn poll_event(&mut self) -> Option<Event> {
         self.events.pop_front()
     }
@@ -443,61 +432,27 @@ impl Device {
 
     /// Feeds bytes read from the device at `now`.
     pub fn handle_input(&mut self, now: Duration, mut bytes: &[u8]) {
-        while let Some(result) = self.framer.decode(&mut bytes) {
-            match result {
-                Err(e) => self.events.push_back(Event::FrameDropped(e)),
-                Ok(frame) => {
-                    let (m, len) = (frame.mid, frame.payload.len());
-                    // Replies fit a SetOutputConfiguration echo; MTData2 is decoded in place.
-                    let mut payload = [0u8; REPLY_CAPACITY];
-                    if m != mid::MT_DATA2 {
-                        let n = len.min(payload.len());
-                        payload[..n].copy_from_slice(&frame.payload[..n]);
-                        self.handle_reply(now, m, &payload[..n], len);
-                    } else if let Phase::Measuring { .. } = self.phase {
-                        let decoded = Measurement::from_payload(frame.payload);
-                        self.handle_measurement(now, decoded);
-                    } else {
-                        self.stats.ignored_frames += 1;
-                    }
+        while let Some(result) = self.receiver.next_frame(now, &mut bytes, &mut self.events) {
+            let Ok(frame) = result else { continue };
+            let (m, len) = (frame.mid, frame.payload.len());
+            if m == mid::MT_DATA2 {
+                // Decoded or not, data is flowing.
+                if let Phase::Measuring { .. } = self.phase {
+                    self.phase = Phase::Measuring { last_data: now };
                 }
+                continue;
             }
-            if self.phase == Phase::Failed {
-                return;
-            }
+            // Replies fit a SetOutputConfiguration echo.
+            let mut payload = [0u8; REPLY_CAPACITY];
+            let n = len.min(payload.len());
+            payload[..n].copy_from_slice(&frame.payload[..n]);
+            self.handle_reply(now, m, &payload[..n], len);
         }
     }
 
-    fn handle_measurement(&mut self, now: Duration, decoded: Result<Measurement, Mtdata2Error>) {
-        self.phase = Phase::Measuring { last_data: now };
-        let data = match decoded {
-            Ok(data) => data,
-            Err(e) => {
-                self.stats.bad_measurements += 1;
-                self.events.push_back(Event::BadMeasurement(e));
-                return;
-            }
-        };
-        let lost_packets = match (self.last_counter, data.packet_counter) {
-            (Some(last), Some(counter)) => counter.wrapping_sub(last).wrapping_sub(1),
-            _ => 0,
-        };
-        if data.packet_counter.is_some() {
-            self.last_counter = data.packet_counter;
-        }
-        self.stats.measurements += 1;
-        self.stats.lost_packets += u64::from(lost_packets);
-        let sample_time = data.sample_time_fine.map(|raw| self.clock.unwrap(raw));
-        self.events.push_back(Event::Measurement(ImuMeasurement {
-            received_at: now,
-            sample_time,
-            lost_packets,
-            data,
-        }));
-    }
-
+    /// Queues `command`; its reply timeout runs from now, and again from its transmission.
     fn send(&mut self, command: Command, now: Duration) {
-        self.transmit.push_back(command.to_frame());
+        self.transmit.push_back(command);
         self.pending = Some(Pending {
             command,
             deadline: now + self.config.reply_timeout,
@@ -522,7 +477,7 @@ impl Device {
         }
         pending.tries += 1;
         pending.deadline = now + self.config.reply_timeout;
-        self.transmit.push_back(pending.command.to_frame());
+        self.transmit.push_back(pending.command);
         self.stats.retries += 1;
     }
 
@@ -542,7 +497,7 @@ impl Device {
                 self.events.push_back(Event::WakeUp);
                 self.restart(now);
                 // The acknowledgement goes first: it must reach the device within 500 ms.
-                self.transmit.push_front(Command::WakeUpAck.to_frame());
+                self.transmit.push_front(Command::WakeUpAck);
             }
             mid::ERROR => {
                 let code = ErrorCode(payload.first().copied().unwrap_or(0));
@@ -589,11 +544,9 @@ impl Device {
                 Command::SetOutputConfiguration(self.requested)
             }
             mid::OUTPUT_CONFIGURATION => return self.check_output_configuration(now, payload, len),
+            // GoToMeasurementAck, reported by the receiver.
             _ => {
                 self.phase = Phase::Measuring { last_data: now };
-                self.last_counter = None;
-                self.clock.last_raw = None;
-                self.events.push_back(Event::Measuring);
                 return;
             }
         };
@@ -601,19 +554,15 @@ impl Device {
     }
 
     fn identified(&mut self, firmware: FirmwareRevision) {
-        let product_code = self.identity.product_code;
-        self.clock.modulus = match self.config.sample_time_wrap {
-            SampleTimeWrap::FromProductCode => product_code.sample_time_wrap(),
-            SampleTimeWrap::Ticks(t) => t.max(2),
-        };
         self.events.push_back(Event::Identified(DeviceInfo {
             device_id: self.identity.device_id,
-            product_code,
+            product_code: self.identity.product_code,
             firmware,
-            sample_time_wrap: self.clock.modulus,
+            sample_time_wrap: self.receiver.sample_time_modulus(),
         }));
     }
 
+    /// The receiver has reported the acknowledged configuration (if it parses).
     fn check_output_configuration(&mut self, now: Duration, payload: &[u8], len: usize) {
         let applied = OutputConfiguration::from_payload(payload).unwrap_or_default();
         if len != payload.len() || applied != self.requested {
@@ -622,7 +571,6 @@ impl Device {
                 applied,
             });
         }
-        self.events.push_back(Event::Configured(applied));
         self.send(Command::GoToMeasurement, now);
     }
 }
@@ -657,19 +605,5 @@ mod tests {
     fn product_code_drops_padding() {
         let code = ProductCode::from_bytes(b"MTi-630     \0\0\0\0");
         assert_eq!(code.as_str(), "MTi-630");
-    }
-
-    #[test]
-    fn sample_clock_unwraps_forward_and_keeps_small_backward_steps() {
-        let mut clock = SampleClock {
-            modulus: 1000,
-            last_raw: None,
-            total: 0,
-        };
-        let got: Vec<u64> = [900, 950, 20, 10, 400]
-            .iter()
-            .map(|&r| clock.unwrap(r))
-            .collect();
-        assert_eq!(got, [900, 950, 1020, 1010, 1400]);
     }
 }

@@ -4,11 +4,11 @@ mod support;
 
 use std::time::Duration;
 
-use support::{measuring_link, Link};
+use support::{assert_receiver_agrees, measuring_link, Link};
 use xbus::emulator::{EmulatorOptions, Sample};
 use xbus::{
     mid, CoordinateSystem, DeviceConfig, Error, ErrorCode, Event, ImuMeasurement, ImuOutput,
-    OutputConfiguration, Precision, SampleTimeWrap, ONE_DAY_TICKS, U32_TICKS,
+    OutputConfiguration, Precision, ProductCode, SampleTimeWrap, ONE_DAY_TICKS, U32_TICKS,
 };
 
 fn measurements(events: &[Event]) -> Vec<ImuMeasurement> {
@@ -41,7 +41,10 @@ fn handshake_identifies_configures_and_measures() {
     let mut link = Link::new(config, EmulatorOptions::mti_g_710());
     link.pump();
     let events = link.take_events();
-    let Event::Identified(info) = events[0] else {
+    assert_receiver_agrees(&link);
+    let code = ProductCode::from_bytes(b"MTi-G-710-2A5G4");
+    assert_eq!(events[0], Event::ProductCode(code));
+    let Event::Identified(info) = events[1] else {
         panic!("{events:?}")
     };
     assert_eq!(info.product_code.as_str(), "MTi-G-710-2A5G4");
@@ -55,8 +58,12 @@ fn handshake_identifies_configures_and_measures() {
         (1, 8, 2)
     );
     assert_eq!(info.sample_time_wrap, ONE_DAY_TICKS);
-    assert_eq!(events[1], Event::Configured(config.output_configuration()));
-    assert_eq!(events[2], Event::Measuring);
+    assert_eq!(
+        events[2],
+        Event::OutputConfiguration(config.output_configuration())
+    );
+    assert_eq!(events[3], Event::Measuring);
+    assert_eq!(events.len(), 4);
     assert_eq!(
         link.emulator.output_configuration(),
         &config.output_configuration()
@@ -240,8 +247,8 @@ fn silent_device_times_out_after_every_retry() {
 fn a_reply_lost_once_is_recovered_by_a_retry() {
     let mut link = Link::new(DeviceConfig::default(), EmulatorOptions::mti_630());
     // The first GoToConfig is lost on the wire.
-    let lost = link.device.poll_transmit().unwrap();
-    assert_eq!(lost.as_bytes(), [0xFA, 0xFF, 0x30, 0x00, 0xD1]);
+    let lost = link.device.poll_transmit(link.now).unwrap();
+    assert_eq!(lost, [0xFA, 0xFF, 0x30, 0x00, 0xD1]);
     link.pump();
     assert!(!link.device.is_measuring());
     link.advance(Duration::from_millis(600));
@@ -286,6 +293,13 @@ fn acknowledgement_that_does_not_echo_the_request_is_an_error() {
     };
     assert_eq!(requested, config.output_configuration());
     assert_eq!(applied.entries()[3].frequency, 50);
+    // The acknowledgement is reported once, as data, before the failure it causes.
+    let acknowledgements: Vec<&Event> = link
+        .events
+        .iter()
+        .filter(|e| matches!(e, Event::OutputConfiguration(_)))
+        .collect();
+    assert_eq!(acknowledgements, [&Event::OutputConfiguration(applied)]);
     assert!(!link.device.is_measuring());
     assert!(!link.emulator.is_measuring());
 }
@@ -305,12 +319,25 @@ fn device_already_measuring_is_brought_back_to_config() {
     for stf in [10, 20, 30] {
         assert!(link.emulator.push_sample(&still(stf)));
     }
+    link.emulator.set_packet_counter(7);
     link.pump();
     assert!(link.device.is_measuring(), "{:?}", link.events);
-    assert!(measurements(&link.events).is_empty());
-    assert_eq!(link.device.stats().ignored_frames, 3);
+    // Measurements before the handshake are data like any other.
+    let early = measurements(&link.events);
+    let counters: Vec<Option<u16>> = early.iter().map(|m| m.data.packet_counter).collect();
+    assert_eq!(counters, [Some(0), Some(1), Some(2)]);
+    assert!(early.iter().all(|m| m.lost_packets == 0));
+    assert_eq!(link.device.stats().ignored_frames, 0);
+    // After GoToMeasurementAck the packet counter is counted afresh: no loss from 2 to 7.
     link.push(&still(40));
-    assert_eq!(measurements(&link.take_events()).len(), 1);
+    let events = link.take_events();
+    assert_receiver_agrees(&link);
+    let after = measurements(&events);
+    assert_eq!(after.len(), 4);
+    assert_eq!(
+        (after[3].data.packet_counter, after[3].lost_packets),
+        (Some(7), 0)
+    );
 }
 
 #[test]
@@ -339,6 +366,7 @@ fn power_cycle_in_measurement_restarts_the_handshake() {
     assert_eq!(events.last(), Some(&Event::Measuring));
     link.push(&still(1));
     assert_eq!(measurements(&link.take_events()).len(), 1);
+    assert_receiver_agrees(&link);
 }
 
 #[test]

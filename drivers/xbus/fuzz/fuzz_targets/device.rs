@@ -1,24 +1,40 @@
-//! Arbitrary bytes and timeouts into the device state machine, in config and in measurement.
+//! Arbitrary bytes and timeouts into the device state machine, in config and in measurement; a
+//! bare receiver fed the same bytes must emit the same data events.
 #![no_main]
 
 use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
 use xbus::emulator::{Emulator, EmulatorOptions};
-use xbus::{Device, DeviceConfig};
+use xbus::{Device, DeviceConfig, Event, Receiver};
+
+fn is_data(event: &Event) -> bool {
+    matches!(
+        event,
+        Event::ProductCode(_)
+            | Event::OutputConfiguration(_)
+            | Event::Measuring
+            | Event::Measurement(_)
+            | Event::FrameDropped(_)
+            | Event::BadMeasurement(_)
+    )
+}
 
 fuzz_target!(|data: &[u8]| {
-    let mut device = Device::new(DeviceConfig::default(), Duration::ZERO);
+    let config = DeviceConfig::default();
+    let mut device = Device::new(config, Duration::ZERO);
+    let mut receiver = Receiver::new(config.sample_time_wrap, config.max_payload);
     if data.first().is_some_and(|b| b & 1 == 1) {
         // Bring it to measurement first so the MTData2 path is exercised.
         let mut emulator = Emulator::new(EmulatorOptions::mti_630());
         let mut bytes = Vec::new();
         for _ in 0..10 {
-            while let Some(t) = device.poll_transmit() {
-                emulator.handle_input(t.as_bytes());
+            while let Some(t) = device.poll_transmit(Duration::ZERO) {
+                emulator.handle_input(t);
             }
             emulator.drain_output(&mut bytes);
             device.handle_input(Duration::ZERO, &bytes);
+            receiver.handle_input(Duration::ZERO, &bytes);
             bytes.clear();
         }
         assert!(device.is_measuring());
@@ -26,8 +42,13 @@ fuzz_target!(|data: &[u8]| {
     for (i, chunk) in data.chunks(29).enumerate() {
         let now = Duration::from_millis(100 * i as u64);
         device.handle_input(now, chunk);
+        receiver.handle_input(now, chunk);
         device.handle_timeout(now);
-        while device.poll_event().is_some() {}
-        while device.poll_transmit().is_some() {}
+        let live: Vec<Event> = std::iter::from_fn(|| device.poll_event())
+            .filter(is_data)
+            .collect();
+        let replayed: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
+        assert_eq!(live, replayed);
+        while device.poll_transmit(now).is_some() {}
     }
 });
