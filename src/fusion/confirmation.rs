@@ -7,10 +7,9 @@
 //! hallway ceiling in a third of its epochs. Such a fictitious plane, and a door near the end
 //! of its swing, moves with the body by less in 0.1 s than integrity can detect, but its error
 //! does not telescope between epochs as plane noise does, so at 10 Hz it builds up unseen. Over
-//! a second the same motion leaves the match gate: in the hover, the epoch 1 s back matches
-//! 0-10 % of such planes and 88-100 % of the real ones (walls, floor, cabinet faces). At 1 Hz
-//! the previous epoch is already that far back and the test adds nothing
-//! (docs/accuracy.md, "Plane confirmation").
+//! a second the same motion leaves the match gate, while real surfaces (walls, floor, cabinet
+//! faces) still match; docs/accuracy.md, "Plane confirmation", has the measured shares. At 1 Hz
+//! the previous epoch is already that far back and the test adds nothing.
 
 use std::collections::VecDeque;
 

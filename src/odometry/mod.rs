@@ -69,8 +69,8 @@ pub struct OdometryConfig {
     /// prior; 30.66 is the 1 - 1e-6 point. It only associates: a static plane it refuses is
     /// refused because the predicted distance (the filter's velocity) is off, and when that
     /// plane alone sees an axis the filter then dead-reckons along it on exactly its worst
-    /// velocities. At the 99.9 % point that selection made the 1 Hz hover's along-track
-    /// position 2.5-4 times optimistic (docs/accuracy.md, "The match gate").
+    /// velocities. A gate at the 99.9 % point made the 1 Hz hover's along-track position
+    /// optimistic by that selection (docs/accuracy.md, "The match gate", has the study).
     pub match_gate_chi2: f64,
     /// Chi-square gate (2 degrees of freedom) on the normal alone; 13.82 is the 99.9 % point.
     /// The normal is predicted with the gyro's rotation, so this one stays a real test: it
