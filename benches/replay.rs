@@ -8,6 +8,7 @@ use divan::{black_box, AllocProfiler, Bencher};
 use ladar_odometer::daemon::config::Config;
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::pipeline::{sensor_specs, Chunk, Pipeline};
+use ladar_odometer::daemon::readings::Receivers;
 use ladar_odometer::daemon::recording::{ReadMode, Recording};
 use ladar_odometer::daemon::replay::BUNDLED_RECORDING;
 use std::path::Path;
@@ -32,6 +33,7 @@ fn bundled() -> (Config, Vec<Chunk>) {
             direction: m.direction,
             log_time_ns: m.log_time_ns,
             data: m.data,
+            readings: Vec::new(),
         })
         .collect();
     (config, chunks)
@@ -42,11 +44,17 @@ fn bundled_recording(bencher: Bencher) {
     let (config, chunks) = bundled();
     bencher
         .counter(ItemsCount::new(chunks.len()))
-        .with_inputs(|| Pipeline::new(sensor_specs(&config), FusionEstimator::new(Some(&config))))
-        .bench_local_values(|mut pipeline| {
+        .with_inputs(|| {
+            let specs = sensor_specs(&config);
+            let receivers = Receivers::new(specs.iter().map(|s| s.encoding()));
+            let pipeline = Pipeline::new(specs, FusionEstimator::new(Some(&config)));
+            (receivers, pipeline, chunks.clone())
+        })
+        .bench_local_values(|(mut receivers, mut pipeline, chunks)| {
             let mut outputs = 0u64;
-            for chunk in &chunks {
-                pipeline.push(chunk, |output| {
+            for mut chunk in chunks {
+                receivers.decode(&mut chunk);
+                pipeline.push(&chunk, |output| {
                     black_box(output);
                     outputs += 1;
                 });

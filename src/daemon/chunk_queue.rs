@@ -27,7 +27,7 @@ struct State {
 }
 
 /// What [`ChunkQueue::pop`] found.
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Debug, PartialEq)]
 pub enum Popped {
     Chunk(Chunk),
     /// Nothing within the wait; the consumer may check on other things and wait again.
@@ -117,6 +117,7 @@ mod tests {
             direction: Direction::Rx,
             log_time_ns: t,
             data: vec![t as u8],
+            readings: Vec::new(),
         }
     }
 

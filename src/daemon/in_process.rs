@@ -22,10 +22,8 @@ pub struct ScipRig {
 
 impl ScipRig {
     pub fn new(model: scip::Model, config: scip::DeviceConfig, device_offset_ms: u32) -> Self {
-        let mut device = scip::Device::new(config);
-        device.start();
         Self {
-            device,
+            device: scip::Device::new(config, Duration::ZERO),
             emulator: scip::Emulator::new(model),
             device_offset_ms,
             scratch: Vec::new(),
@@ -40,7 +38,7 @@ impl ScipRig {
 
     /// Runs both sides at host time `now_ns` until neither has anything more to say.
     pub fn exchange(&mut self, now_ns: u64, out: &mut Vec<Exchanged>) {
-        let now = now_ns as f64 * 1e-9;
+        let now = Duration::from_nanos(now_ns);
         self.emulator.set_clock(self.device_ms(now_ns));
         self.device.handle_timeout(now);
         loop {
@@ -52,17 +50,13 @@ impl ScipRig {
                 quiet = false;
             }
             self.scratch.clear();
-            self.emulator.take_output(&mut self.scratch);
+            self.emulator.drain_output(&mut self.scratch);
             if !self.scratch.is_empty() {
                 self.device.handle_input(now, &self.scratch);
                 out.push((Direction::Rx, now_ns, self.scratch.clone()));
                 quiet = false;
             }
-            while let Some(event) = self.device.poll_event() {
-                if let scip::DeviceEvent::Scan(scan) = event {
-                    self.device.recycle(scan);
-                }
-            }
+            while self.device.poll_event().is_some() {}
             if quiet {
                 return;
             }
@@ -108,9 +102,10 @@ impl XbusRig {
         }
         loop {
             let mut quiet = true;
-            while let Some(frame) = self.device.poll_transmit() {
-                self.emulator.handle_input(frame.as_bytes());
-                out.push((Direction::Tx, now_ns, frame.as_bytes().to_vec()));
+            while let Some(bytes) = self.device.poll_transmit(now) {
+                let bytes = bytes.to_vec();
+                self.emulator.handle_input(&bytes);
+                out.push((Direction::Tx, now_ns, bytes));
                 quiet = false;
             }
             self.scratch.clear();

@@ -12,6 +12,8 @@
 use super::latency::LatencyLog;
 use super::link::{Link, LinkError};
 use super::mavlink_out::{heartbeat, MavlinkStream, RateLimiter, HEARTBEAT_RATE_HZ};
+use super::outputs::{OutputError, Outputs};
+use super::sink::Autopilot;
 use crate::estimate::Estimate;
 use mavlink::dialects::ardupilotmega::{MavMessage, MavState};
 use std::sync::{Arc, Mutex, PoisonError};
@@ -68,22 +70,6 @@ impl Feed {
         }
     }
 
-    /// An IMU-rate estimate: sent at the steady rate.
-    pub fn estimate(&mut self, estimate: &Estimate) {
-        let message = self.stream.on_estimate(estimate.t, estimate);
-        self.hand_over(message);
-        self.after_estimate();
-    }
-
-    /// The estimate of an epoch closed by the chunk read at `read_ns`: sent at once where the
-    /// profile allows, else carried by the next message.
-    pub fn epoch_estimate(&mut self, estimate: &Estimate, read_ns: u64) {
-        self.epoch_read_ns = Some(read_ns);
-        let message = self.stream.on_epoch_estimate(estimate);
-        self.hand_over(message);
-        self.after_estimate();
-    }
-
     /// Hands over the STATUSTEXT an estimate called for and publishes the HEARTBEAT state.
     fn after_estimate(&mut self) {
         let text = self.stream.take_statustext();
@@ -123,6 +109,39 @@ impl Feed {
             // The task has stopped and logged why.
             Err(mpsc::error::TrySendError::Closed(_)) => {}
         }
+    }
+}
+
+/// The link task writes `mavlink.tlog` as it sends, stamped with wall-clock time, so the files
+/// are not touched here.
+impl Autopilot for Feed {
+    type Error = OutputError;
+
+    /// An IMU-rate estimate: sent at the steady rate.
+    fn estimate(
+        &mut self,
+        estimate: &Estimate,
+        _: Option<&mut Outputs>,
+    ) -> Result<(), OutputError> {
+        let message = self.stream.on_estimate(estimate.t, estimate);
+        self.hand_over(message);
+        self.after_estimate();
+        Ok(())
+    }
+
+    /// The estimate of an epoch closed by the chunk read at `read_ns`: sent at once where the
+    /// profile allows, else carried by the next message.
+    fn epoch_estimate(
+        &mut self,
+        estimate: &Estimate,
+        read_ns: u64,
+        _: Option<&mut Outputs>,
+    ) -> Result<(), OutputError> {
+        self.epoch_read_ns = Some(read_ns);
+        let message = self.stream.on_epoch_estimate(estimate);
+        self.hand_over(message);
+        self.after_estimate();
+        Ok(())
     }
 }
 

@@ -1,15 +1,16 @@
-//! The fusion loop's synchronous core, identical live and in replay: chunks of device bytes in
-//! consumption order -> per-sensor decoders -> an [`Estimator`] -> estimates and epoch records.
+//! The fusion loop's synchronous core, identical live and in replay: chunks of device bytes, in
+//! consumption order, with what the driver decoded from them -> host timing per sensor -> an
+//! [`Estimator`] -> estimates and epoch records.
 //!
 //! Staleness is decided from the chunks alone, so replay reproduces it: a sensor whose link
 //! dropped (the sensor task sends an empty rx chunk, which is recorded like any other) or that
 //! has been silent for `STALE_AFTER_NS` while others spoke is marked stale, and fresh again on
 //! its next bytes.
 
-use super::config::Config;
+use super::config::{Config, ImuConfig, ImuSeries, ScannerConfig};
+use super::readings::{DecodeCounts, Reading, SensorEvent, SensorSetup, SensorTiming};
 use super::recording::{Direction, Encoding};
 use crate::estimate::Estimate;
-use crate::fusion::sources::{DecodeCounts, SensorDecoder, SensorEvent, SensorSetup};
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use serde::Serialize;
 
@@ -17,13 +18,16 @@ use serde::Serialize;
 pub const STALE_AFTER_NS: u64 = 1_000_000_000;
 
 /// One chunk of bytes read from (`Rx`) or written to (`Tx`) sensor number `sensor`, stamped with
-/// host monotonic ns since the daemon started. An empty `Rx` chunk says the link was lost.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// host monotonic ns since the daemon started, with the readings its driver decoded from it.
+/// An empty `Rx` chunk says the link was lost. The bytes are what is recorded; the readings are
+/// what the fusion takes.
+#[derive(Debug, Clone, PartialEq)]
 pub struct Chunk {
     pub sensor: usize,
     pub direction: Direction,
     pub log_time_ns: u64,
     pub data: Vec<u8>,
+    pub readings: Vec<Reading>,
 }
 
 /// A configured sensor as the pipeline and the recording know it.
@@ -31,38 +35,54 @@ pub struct Chunk {
 pub struct SensorSpec {
     /// Recording topic `/<name>/rx`.
     pub name: String,
-    pub encoding: Encoding,
     pub setup: SensorSetup,
 }
 
-/// Scanners in configuration order, then the IMU: the sensor numbers of [`Chunk::sensor`].
+impl SensorSpec {
+    /// What its bytes speak.
+    pub fn encoding(&self) -> Encoding {
+        match self.setup {
+            SensorSetup::Scanner { .. } => Encoding::Scip2,
+            SensorSetup::Imu { .. } => Encoding::Xbus,
+        }
+    }
+}
+
+/// One sensor of a configuration.
+#[derive(Debug, Clone, Copy)]
+pub enum Configured<'a> {
+    Scanner(&'a ScannerConfig),
+    Imu(&'a ImuConfig),
+}
+
+/// The configuration's sensors in the one order that numbers them ([`Chunk::sensor`]):
+/// scanners in configuration order, then the IMU. A scanner's number is its scanner index.
+pub fn configured_sensors(config: &Config) -> impl Iterator<Item = Configured<'_>> {
+    let scanners = config.scanners.iter().map(Configured::Scanner);
+    scanners.chain(std::iter::once(Configured::Imu(&config.imu)))
+}
+
 pub fn sensor_specs(config: &Config) -> Vec<SensorSpec> {
-    let scanners = config
-        .scanners
-        .iter()
-        .enumerate()
-        .map(|(index, scanner)| SensorSpec {
+    let spec = |(number, sensor)| match sensor {
+        Configured::Scanner(scanner) => SensorSpec {
             name: scanner.name.clone(),
-            encoding: Encoding::Scip2,
             setup: SensorSetup::Scanner {
-                index,
+                index: number,
                 geometry: None,
             },
-        });
-    let imu = SensorSpec {
-        name: config.imu.name.clone(),
-        encoding: Encoding::Xbus,
-        setup: SensorSetup::Imu {
-            sample_time_modulus: match config.imu.series {
-                super::config::ImuSeries::Mti100 => xbus::ONE_DAY_TICKS,
-                super::config::ImuSeries::Auto | super::config::ImuSeries::Mti600 => {
-                    xbus::U32_TICKS
-                }
+        },
+        Configured::Imu(imu) => SensorSpec {
+            name: imu.name.clone(),
+            setup: SensorSetup::Imu {
+                sample_time_modulus: match imu.series {
+                    ImuSeries::Mti100 => xbus::ONE_DAY_TICKS,
+                    ImuSeries::Auto | ImuSeries::Mti600 => xbus::U32_TICKS,
+                },
+                rate_hz: f64::from(imu.rate_hz.max(1)),
             },
-            rate_hz: f64::from(config.imu.rate_hz.max(1)),
         },
     };
-    scanners.chain(std::iter::once(imu)).collect()
+    configured_sensors(config).enumerate().map(spec).collect()
 }
 
 /// What an odometry epoch contributes to the replay summary and to `run`'s log.
@@ -158,7 +178,7 @@ pub enum Output<E> {
 
 pub struct Pipeline<E: Estimator> {
     specs: Vec<SensorSpec>,
-    decoders: Vec<SensorDecoder>,
+    timings: Vec<SensorTiming>,
     estimator: E,
     events: Vec<SensorEvent>,
     last_rx_ns: Vec<Option<u64>>,
@@ -169,7 +189,7 @@ impl<E: Estimator> Pipeline<E> {
     pub fn new(specs: Vec<SensorSpec>, estimator: E) -> Self {
         let n = specs.len();
         Self {
-            decoders: specs.iter().map(|s| SensorDecoder::new(s.setup)).collect(),
+            timings: specs.iter().map(|s| SensorTiming::new(s.setup)).collect(),
             specs,
             estimator,
             events: Vec::new(),
@@ -180,7 +200,7 @@ impl<E: Estimator> Pipeline<E> {
 
     /// Adds a sensor found in a recording without a configuration.
     pub fn with_sensor(mut self, spec: SensorSpec) -> Self {
-        self.decoders.push(SensorDecoder::new(spec.setup));
+        self.timings.push(SensorTiming::new(spec.setup));
         self.specs.push(spec);
         self.last_rx_ns.push(None);
         self.stale.push(false);
@@ -198,12 +218,11 @@ impl<E: Estimator> Pipeline<E> {
 
     /// Takes one chunk; `out` receives what it completed. Transmitted bytes are only recorded.
     pub fn push(&mut self, chunk: &Chunk, mut out: impl FnMut(Output<E::Epoch>)) {
-        if chunk.direction != Direction::Rx || chunk.sensor >= self.decoders.len() {
+        if chunk.direction != Direction::Rx || chunk.sensor >= self.timings.len() {
             return;
         }
         let t = chunk.log_time_ns as f64 / 1e9;
         if chunk.data.is_empty() {
-            self.decoders[chunk.sensor].link_lost();
             self.set_stale(chunk.sensor, true, t);
             return;
         }
@@ -213,7 +232,11 @@ impl<E: Estimator> Pipeline<E> {
         }
         self.set_stale(chunk.sensor, false, t);
         self.events.clear();
-        self.decoders[chunk.sensor].push(chunk.log_time_ns, &chunk.data, &mut self.events);
+        let timing = &mut self.timings[chunk.sensor];
+        timing.received(chunk.data.len());
+        for reading in &chunk.readings {
+            timing.take(chunk.log_time_ns, reading, &mut self.events);
+        }
         for event in self.events.drain(..) {
             match event {
                 SensorEvent::Geometry { sensor, geometry } => {
@@ -259,7 +282,7 @@ impl<E: Estimator> Pipeline<E> {
 
     /// Decoder health per sensor, in sensor order.
     pub fn decode_counts(&self) -> Vec<DecodeCounts> {
-        self.decoders.iter().map(SensorDecoder::counts).collect()
+        self.timings.iter().map(SensorTiming::counts).collect()
     }
 
     pub fn estimator(&self) -> &E {
@@ -318,7 +341,6 @@ mod tests {
     fn specs() -> Vec<SensorSpec> {
         let scanner = |index: usize, name: &str| SensorSpec {
             name: name.into(),
-            encoding: Encoding::Scip2,
             setup: SensorSetup::Scanner {
                 index,
                 geometry: None,
@@ -333,6 +355,7 @@ mod tests {
             direction: Direction::Rx,
             log_time_ns: ms * 1_000_000,
             data: data.to_vec(),
+            readings: Vec::new(),
         }
     }
 

@@ -6,20 +6,22 @@ use super::config::Config;
 use super::foxglove::FoxgloveWriter;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
-use super::outcomes::{OutcomeCounts, OutcomeWarnings};
+use super::outcomes::OutcomeCounts;
 use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
+use super::readings::{DecodeCounts, Receivers, SensorSetup};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
+use super::sink::{Autopilot, Sink};
 use super::truth::{autopilot_view, truth_errors, AutopilotView, TruthErrors};
 use crate::estimate::Estimate;
-use crate::fusion::sources::{DecodeCounts, SensorSetup};
 use crate::report::chart::ChartError;
 use crate::report::RunReport;
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::MAVLinkV2MessageRaw;
+use serde::Serialize;
 use std::fmt;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -245,8 +247,12 @@ pub fn replay<E: Estimator>(
         from_s,
         tapped: options.out.is_some().then(Vec::new),
     };
+    let mut receivers = Receivers::new(specs.iter().map(SensorSpec::encoding));
     let mut pipeline = Pipeline::new(specs, estimator);
-    let mut mavlink = MavlinkOut::new(config.as_ref(), options.mavlink.as_deref())?;
+    let mut sink = Sink::new(Some(MavlinkOut::new(
+        config.as_ref(),
+        options.mavlink.as_deref(),
+    )?));
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
     tracing::info!(
         recording = %path.display(),
@@ -280,6 +286,7 @@ pub fn replay<E: Estimator>(
             Some(sensor) => sensor,
             None if discover => {
                 let index = pipeline.specs().len();
+                receivers.add(message.encoding);
                 pipeline = pipeline.with_sensor(spec_for(&message, index));
                 index
             }
@@ -301,15 +308,18 @@ pub fn replay<E: Estimator>(
             bytes = message.data.len(),
             "chunk"
         );
-        let chunk = Chunk {
+        let mut chunk = Chunk {
             sensor,
             direction: message.direction,
             log_time_ns: message.log_time_ns,
             data: message.data,
+            readings: Vec::new(),
         };
+        receivers.decode(&mut chunk);
         let mut failure = None;
         pipeline.push(&chunk, |output| {
-            if let Err(e) = tally.output::<E>(output, outputs.as_mut(), &mut mavlink) {
+            let routed = tally.output::<E>(&output, chunk.log_time_ns, outputs.as_mut(), &mut sink);
+            if let Err(e) = routed {
                 failure.get_or_insert(e);
             }
         });
@@ -343,6 +353,8 @@ pub fn replay<E: Estimator>(
     } else {
         truth_errors(&tally.kept, &truth, stationary_start_s)
     };
+    let (mavlink, routed) = sink.into_parts();
+    let policy = mavlink.map_or_else(QualityPolicy::default, |m| m.stream.policy());
     let summary = ReplaySummary {
         duration_s: tally.duration_s(),
         chunks: tally.chunks,
@@ -353,14 +365,14 @@ pub fn replay<E: Estimator>(
             .map(|s| s.name.clone())
             .zip(pipeline.decode_counts())
             .collect(),
-        estimates: tally.estimates,
-        epochs: tally.epochs,
-        planes: tally.planes,
-        detections: tally.detections,
-        exclusions: tally.exclusions,
-        outcomes: tally.outcomes,
+        estimates: routed.estimates,
+        epochs: routed.epochs,
+        planes: routed.planes,
+        detections: routed.detections,
+        exclusions: routed.exclusions,
+        outcomes: routed.outcomes,
         truth: ned_truth,
-        autopilot: autopilot_view(&tally.kept, &truth, &mavlink.stream.policy()),
+        autopilot: autopilot_view(&tally.kept, &truth, &policy),
         loss: reader.loss().cloned(),
     };
     if let (true, Some(dir)) = (options.report, &options.out) {
@@ -369,7 +381,7 @@ pub fn replay<E: Estimator>(
             estimates: &tally.kept,
             truth: &truth,
             epochs: tally.epoch_lines.as_deref().unwrap_or_default(),
-            policy: &mavlink.stream.policy(),
+            policy: &policy,
             summary: &summary,
             shares_truth_frame: options.start_s == 0.0,
         };
@@ -461,7 +473,6 @@ fn spec_for(message: &RecordedMessage, index: usize) -> SensorSpec {
     };
     SensorSpec {
         name: message.sensor.clone(),
-        encoding: message.encoding,
         setup,
     }
 }
@@ -483,21 +494,14 @@ fn progress_bar(wanted: bool, length: u64) -> indicatif::ProgressBar {
 /// Estimates kept for the truth comparison: at most this rate, so memory stays small.
 const KEPT_ESTIMATE_HZ: f64 = 20.0;
 
+/// What a replay keeps beside the outputs every run writes: the byte counts, the estimates for
+/// the truth comparison, and what the report and `estimate.mcap` draw.
 #[derive(Default)]
 struct Tally {
     chunks: u64,
     bytes: u64,
     first_ns: Option<u64>,
     last_ns: u64,
-    estimates: u64,
-    epochs: u64,
-    planes: u64,
-    detections: u64,
-    exclusions: u64,
-    outcomes: OutcomeCounts,
-    warnings: OutcomeWarnings,
-    /// Log time of the chunk being replayed, s: the warnings' clock, as in `run`.
-    now_s: f64,
     kept: Vec<Estimate>,
     /// The epochs as `epochs.jsonl` holds them, when a report will be drawn.
     epoch_lines: Option<Vec<serde_json::Value>>,
@@ -508,7 +512,6 @@ impl Tally {
     fn chunk(&mut self, message: &RecordedMessage) {
         self.chunks += 1;
         self.bytes += message.data.len() as u64;
-        self.now_s = message.log_time_ns as f64 * 1e-9;
         if message.log_time_ns != 0 {
             self.first_ns.get_or_insert(message.log_time_ns);
             self.last_ns = self.last_ns.max(message.log_time_ns);
@@ -544,76 +547,50 @@ impl Tally {
         }
     }
 
+    /// Keeps and draws what the replay needs of `output`, then routes it as `run` does.
     fn output<E: Estimator>(
         &mut self,
-        output: Output<E::Epoch>,
+        output: &Output<E::Epoch>,
+        read_ns: u64,
         outputs: Option<&mut Outputs>,
-        mavlink: &mut MavlinkOut,
+        sink: &mut Sink<MavlinkOut>,
     ) -> Result<(), ReplayError> {
         match output {
-            Output::Estimate(estimate) => {
-                self.estimates += 1;
-                if self
-                    .kept
-                    .last()
-                    .is_none_or(|last| estimate.t - last.t >= 1.0 / KEPT_ESTIMATE_HZ)
-                {
-                    self.kept.push(estimate.clone());
-                    if let Some(foxglove) = &mut self.foxglove {
-                        foxglove.estimate(&estimate)?;
-                    }
-                }
-                let outputs = match outputs {
-                    Some(outputs) => {
-                        outputs.trajectory(&estimate)?;
-                        Some(outputs)
-                    }
-                    None => None,
-                };
-                mavlink.estimate(&estimate, outputs)?;
+            Output::Estimate(estimate) => self.keep(estimate)?,
+            Output::Epoch(epoch) => self.draw(epoch)?,
+            Output::EpochEstimate(_) => {}
+        }
+        sink.output::<E>(output, read_ns, outputs)
+    }
+
+    fn keep(&mut self, estimate: &Estimate) -> Result<(), OutputError> {
+        if self
+            .kept
+            .last()
+            .is_none_or(|last| estimate.t - last.t >= 1.0 / KEPT_ESTIMATE_HZ)
+        {
+            self.kept.push(estimate.clone());
+            if let Some(foxglove) = &mut self.foxglove {
+                foxglove.estimate(estimate)?;
             }
-            Output::EpochEstimate(estimate) => {
-                let message = mavlink.stream.on_epoch_estimate(&estimate);
-                let mut outputs = outputs;
-                mavlink.send(message, estimate.t, outputs.as_deref_mut())?;
-                let text = mavlink.stream.take_statustext();
-                mavlink.send(text, estimate.t, outputs)?;
-            }
-            Output::Epoch(epoch) => {
-                let counts = E::epoch_counts(&epoch);
-                self.epochs += 1;
-                self.planes += counts.planes as u64;
-                self.detections += u64::from(counts.detected);
-                self.exclusions += counts.excluded as u64;
-                tracing::debug!(
-                    outcome = counts.outcome.describe(),
-                    planes = counts.planes,
-                    excluded = counts.excluded,
-                    failure = counts.failure.as_deref(),
-                    "epoch"
-                );
-                if let Some(warning) = self.warnings.observe(&counts, self.now_s) {
-                    tracing::warn!("{warning}");
-                }
-                self.outcomes.add(&counts);
-                let drawn = self.epoch_lines.is_some() || self.foxglove.is_some();
-                let line = drawn
-                    .then(|| serde_json::to_value(&epoch))
-                    .transpose()
-                    .map_err(|source| OutputError::Serialise {
-                        path: REPORT_FILE.into(),
-                        source,
-                    })?;
-                if let (Some(foxglove), Some(line)) = (&mut self.foxglove, &line) {
-                    foxglove.epoch(line)?;
-                }
-                if let (Some(lines), Some(line)) = (&mut self.epoch_lines, line) {
-                    lines.push(line);
-                }
-                if let Some(outputs) = outputs {
-                    outputs.epoch(&epoch)?;
-                }
-            }
+        }
+        Ok(())
+    }
+
+    fn draw<T: Serialize>(&mut self, epoch: &T) -> Result<(), OutputError> {
+        let drawn = self.epoch_lines.is_some() || self.foxglove.is_some();
+        let line = drawn
+            .then(|| serde_json::to_value(epoch))
+            .transpose()
+            .map_err(|source| OutputError::Serialise {
+                path: REPORT_FILE.into(),
+                source,
+            })?;
+        if let (Some(foxglove), Some(line)) = (&mut self.foxglove, &line) {
+            foxglove.epoch(line)?;
+        }
+        if let (Some(lines), Some(line)) = (&mut self.epoch_lines, line) {
+            lines.push(line);
         }
         Ok(())
     }
@@ -662,20 +639,6 @@ impl MavlinkOut {
         })
     }
 
-    fn estimate(
-        &mut self,
-        estimate: &Estimate,
-        outputs: Option<&mut Outputs>,
-    ) -> Result<(), ReplayError> {
-        let mut outputs = outputs;
-        let heartbeat = self.stream.heartbeat_due(estimate.t);
-        self.send(heartbeat, estimate.t, outputs.as_deref_mut())?;
-        let message = self.stream.on_estimate(estimate.t, estimate);
-        self.send(message, estimate.t, outputs.as_deref_mut())?;
-        let text = self.stream.take_statustext();
-        self.send(text, estimate.t, outputs)
-    }
-
     /// Sends `message`, if any, and logs it in `mavlink.tlog` at estimate time `t`.
     fn send(
         &mut self,
@@ -705,5 +668,36 @@ impl MavlinkOut {
         let mut raw = MAVLinkV2MessageRaw::new();
         raw.serialize_message(header, message);
         raw.raw_bytes().to_vec()
+    }
+}
+
+/// The replay decides the HEARTBEAT on estimate time too, so `mavlink.tlog` carries the whole
+/// stream, each frame stamped with the estimate it followed.
+impl Autopilot for MavlinkOut {
+    type Error = ReplayError;
+
+    fn estimate(
+        &mut self,
+        estimate: &Estimate,
+        mut outputs: Option<&mut Outputs>,
+    ) -> Result<(), ReplayError> {
+        let heartbeat = self.stream.heartbeat_due(estimate.t);
+        self.send(heartbeat, estimate.t, outputs.as_deref_mut())?;
+        let message = self.stream.on_estimate(estimate.t, estimate);
+        self.send(message, estimate.t, outputs.as_deref_mut())?;
+        let text = self.stream.take_statustext();
+        self.send(text, estimate.t, outputs)
+    }
+
+    fn epoch_estimate(
+        &mut self,
+        estimate: &Estimate,
+        _: u64,
+        mut outputs: Option<&mut Outputs>,
+    ) -> Result<(), ReplayError> {
+        let message = self.stream.on_epoch_estimate(estimate);
+        self.send(message, estimate.t, outputs.as_deref_mut())?;
+        let text = self.stream.take_statustext();
+        self.send(text, estimate.t, outputs)
     }
 }

@@ -6,20 +6,25 @@
 //! recording.
 
 use super::chunk_queue::{ChunkQueue, Popped, QUEUE_CHUNKS};
-use super::config::{Config, ConfigErrors, ImuOutput, ScanStream};
+use super::config::{
+    Config, ConfigErrors, ImuConfig, ImuOutput, ImuSeries, ScanStream, ScannerConfig,
+};
 use super::health::Health;
 use super::latency::{LatencyLog, LatencySummary};
 use super::link::{Link, LinkError};
 use super::mavlink_out::{MavlinkStream, QualityPolicy};
 use super::mavlink_task::{Feed, Outgoing, SharedState, QUEUE_MESSAGES};
-use super::outcomes::{OutcomeCounts, OutcomeWarnings};
+use super::outcomes::OutcomeCounts;
 use super::outputs::{OutputError, Outputs};
-use super::pipeline::{sensor_specs, Estimator, Output, Pipeline, SensorSpec};
+use super::pipeline::{
+    configured_sensors, sensor_specs, Configured, Estimator, Output, Pipeline, SensorSpec,
+};
+use super::readings::DecodeCounts;
 use super::recorder_thread::{self, RecorderHandle, RecorderSummary, Tap};
 use super::recording::{Recorder, RecordingError};
 use super::sensor_task::{self, Driver, HostClock, SensorLink};
+use super::sink::Sink;
 use super::{mavlink_task, watchdog};
-use crate::fusion::sources::DecodeCounts;
 use mavlink::dialects::ardupilotmega::MavState;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -215,62 +220,73 @@ where
             .zip(fused.pipeline.decode_counts())
             .collect(),
         estimator: fused.pipeline.into_estimator(),
-        outcomes: fused.outcomes,
+        outcomes: fused.sink.tally().outcomes.clone(),
         chunks: fused.chunks,
         latency,
         fused_latency: fused.latency.summary(),
-        mavlink_dropped: fused.feed.as_ref().map_or(0, Feed::dropped),
+        mavlink_dropped: fused.sink.autopilot().map_or(0, Feed::dropped),
         dropped_chunks: queue.dropped(),
         unrecorded_chunks,
         recording,
     })
 }
 
-/// Scanners in configuration order, then the IMU, numbered as [`sensor_specs`] numbers them.
+/// How to reach each sensor, numbered as [`sensor_specs`] numbers them.
 pub fn sensor_links(config: &Config) -> Vec<SensorLink> {
-    let scanners = config.scanners.iter().enumerate().map(|(index, s)| {
-        let steps = s.first_step.zip(s.last_step).map(|(first, last)| {
+    configured_sensors(config)
+        .enumerate()
+        .map(|(index, sensor)| match sensor {
+            Configured::Scanner(scanner) => SensorLink {
+                index,
+                name: scanner.name.clone(),
+                connection: scanner.connection(),
+                driver: Driver::Scip(scanner_driver(scanner)),
+            },
+            Configured::Imu(imu) => SensorLink {
+                index,
+                name: imu.name.clone(),
+                connection: imu.connection(),
+                driver: Driver::Xbus(imu_driver(imu)),
+            },
+        })
+        .collect()
+}
+
+fn scanner_driver(scanner: &ScannerConfig) -> scip::DeviceConfig {
+    let steps = scanner
+        .first_step
+        .zip(scanner.last_step)
+        .map(|(first, last)| {
             (
                 u16::try_from(first).unwrap_or(u16::MAX),
                 u16::try_from(last).unwrap_or(u16::MAX),
             )
         });
-        SensorLink {
-            index,
-            name: s.name.clone(),
-            connection: s.connection(),
-            driver: Driver::Scip(scip::DeviceConfig {
-                data: match s.stream {
-                    ScanStream::Md => scip::DataKind::Distance,
-                    ScanStream::Me => scip::DataKind::DistanceIntensity,
-                },
-                steps,
-                cluster: u8::try_from(s.cluster).unwrap_or(u8::MAX),
-                ..scip::DeviceConfig::default()
-            }),
-        }
-    });
-    let imu = SensorLink {
-        index: config.scanners.len(),
-        name: config.imu.name.clone(),
-        connection: config.imu.connection(),
-        driver: Driver::Xbus(xbus::DeviceConfig {
-            imu_output: match config.imu.output {
-                ImuOutput::Rate => xbus::ImuOutput::Rates,
-                ImuOutput::Delta => xbus::ImuOutput::Increments,
-            },
-            rate_hz: u16::try_from(config.imu.rate_hz).unwrap_or(u16::MAX),
-            sample_time_wrap: match config.imu.series {
-                super::config::ImuSeries::Auto => xbus::SampleTimeWrap::FromProductCode,
-                super::config::ImuSeries::Mti100 => {
-                    xbus::SampleTimeWrap::Ticks(xbus::ONE_DAY_TICKS)
-                }
-                super::config::ImuSeries::Mti600 => xbus::SampleTimeWrap::Ticks(xbus::U32_TICKS),
-            },
-            ..xbus::DeviceConfig::default()
-        }),
-    };
-    scanners.chain(std::iter::once(imu)).collect()
+    scip::DeviceConfig {
+        data: match scanner.stream {
+            ScanStream::Md => scip::DataKind::Distance,
+            ScanStream::Me => scip::DataKind::DistanceIntensity,
+        },
+        steps,
+        cluster: u8::try_from(scanner.cluster).unwrap_or(u8::MAX),
+        ..scip::DeviceConfig::default()
+    }
+}
+
+fn imu_driver(imu: &ImuConfig) -> xbus::DeviceConfig {
+    xbus::DeviceConfig {
+        imu_output: match imu.output {
+            ImuOutput::Rate => xbus::ImuOutput::Rates,
+            ImuOutput::Delta => xbus::ImuOutput::Increments,
+        },
+        rate_hz: u16::try_from(imu.rate_hz).unwrap_or(u16::MAX),
+        sample_time_wrap: match imu.series {
+            ImuSeries::Auto => xbus::SampleTimeWrap::FromProductCode,
+            ImuSeries::Mti100 => xbus::SampleTimeWrap::Ticks(xbus::ONE_DAY_TICKS),
+            ImuSeries::Mti600 => xbus::SampleTimeWrap::Ticks(xbus::U32_TICKS),
+        },
+        ..xbus::DeviceConfig::default()
+    }
 }
 
 /// `--record FILE`, else a new file named after the start time in `[recording] path`.
@@ -350,8 +366,7 @@ struct Fused<E: Estimator> {
     pipeline: Pipeline<E>,
     chunks: u64,
     latency: LatencyLog,
-    feed: Option<Feed>,
-    outcomes: OutcomeCounts,
+    sink: Sink<Feed>,
 }
 
 /// The fusion thread: consumption order is recording order is replay order.
@@ -360,20 +375,19 @@ fn fusion_loop<E: Estimator>(
     queue: &ChunkQueue,
     recorder: Option<RecorderHandle>,
     outputs: &Mutex<Option<Outputs>>,
-    mut feed: Option<Feed>,
+    feed: Option<Feed>,
     progress: &watchdog::Progress,
     clock: HostClock,
 ) -> Fused<E> {
     let names: Vec<(Arc<str>, _)> = pipeline
         .specs()
         .iter()
-        .map(|s| (Arc::from(s.name.as_str()), s.encoding))
+        .map(|s| (Arc::from(s.name.as_str()), s.encoding()))
         .collect();
     let mut chunks = 0;
     let mut latency = LatencyLog::new("scan-to-fused");
     let mut health = Health::new(names.iter().map(|(name, _)| name.to_string()).collect());
-    let mut outcomes = OutcomeCounts::default();
-    let mut warnings = OutcomeWarnings::default();
+    let mut sink = Sink::new(feed);
     loop {
         progress.advance();
         let chunk = match queue.pop(Duration::from_millis(100)) {
@@ -387,18 +401,15 @@ fn fusion_loop<E: Estimator>(
         let now_s = chunk.log_time_ns as f64 * 1e-9;
         pipeline.push(&chunk, |output| {
             match &output {
-                Output::Epoch(epoch) => {
-                    closed_epoch = true;
-                    let counts = E::epoch_counts(epoch);
-                    if let Some(warning) = warnings.observe(&counts, now_s) {
-                        tracing::warn!("{warning}");
-                    }
-                    outcomes.add(&counts);
-                }
+                Output::Epoch(_) => closed_epoch = true,
                 Output::Estimate(estimate) => newest = Some(estimate.clone()),
                 Output::EpochEstimate(_) => {}
             }
-            deliver::<E>(output, chunk.log_time_ns, outputs, feed.as_mut());
+            let mut files = outputs.lock().unwrap_or_else(PoisonError::into_inner);
+            if let Err(e) = sink.output::<E>(&output, chunk.log_time_ns, files.as_mut()) {
+                tracing::error!("{e}; output files stop here");
+                *files = None;
+            }
         });
         let stale: Vec<bool> = (0..names.len()).map(|k| pipeline.is_stale(k)).collect();
         if let Some(line) = health.observe(newest.as_ref(), &stale, now_s) {
@@ -422,33 +433,6 @@ fn fusion_loop<E: Estimator>(
         pipeline,
         chunks,
         latency,
-        feed,
-        outcomes,
-    }
-}
-
-/// Writes an output to the files and offers estimates to the MAVLink feed; `read_ns` is the
-/// read time of the chunk that produced it.
-fn deliver<E: Estimator>(
-    output: Output<E::Epoch>,
-    read_ns: u64,
-    outputs: &Mutex<Option<Outputs>>,
-    feed: Option<&mut Feed>,
-) {
-    let mut files = outputs.lock().unwrap_or_else(PoisonError::into_inner);
-    let written = match (&output, files.as_mut()) {
-        (Output::Estimate(estimate), Some(out)) => out.trajectory(estimate),
-        (Output::Epoch(epoch), Some(out)) => out.epoch(epoch),
-        (Output::EpochEstimate(_), _) | (_, None) => Ok(()),
-    };
-    if let Err(e) = written {
-        tracing::error!("{e}; output files stop here");
-        *files = None;
-    }
-    drop(files);
-    match (output, feed) {
-        (Output::Estimate(estimate), Some(feed)) => feed.estimate(&estimate),
-        (Output::EpochEstimate(estimate), Some(feed)) => feed.epoch_estimate(&estimate, read_ns),
-        _ => {}
+        sink,
     }
 }

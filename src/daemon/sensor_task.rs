@@ -1,6 +1,7 @@
 //! One task per sensor: owns the port (exclusive serial, or TCP), runs the driver's sans-IO
 //! device for the handshake and the stream, and stamps every chunk read or written with host
-//! monotonic time into the chunk queue. A port that disappears (USB unplugged, TCP reset) is
+//! monotonic time into the chunk queue, each received chunk with the readings the device
+//! decoded from it (the only decoding the daemon does). A port that disappears (USB unplugged, TCP reset) is
 //! reopened with backoff and the device re-initialised; each change of link state is logged
 //! once, not each retry, and an empty rx chunk tells the fusion (and the recording) the link
 //! was lost.
@@ -8,6 +9,7 @@
 use super::chunk_queue::ChunkQueue;
 use super::config::SensorConnection;
 use super::pipeline::Chunk;
+use super::readings::Reading;
 use super::recording::Direction;
 use std::io;
 use std::pin::Pin;
@@ -53,8 +55,8 @@ impl HostClock {
     pub fn now_ns(&self) -> u64 {
         (self.0.elapsed().as_nanos() as u64).max(1)
     }
-    pub fn now_s(&self) -> f64 {
-        self.now_ns() as f64 * 1e-9
+    pub fn now(&self) -> Duration {
+        Duration::from_nanos(self.now_ns())
     }
 }
 
@@ -217,6 +219,7 @@ pub async fn run(
                     direction: Direction::Rx,
                     log_time_ns: clock.now_ns(),
                     data: Vec::new(),
+                    readings: Vec::new(),
                 });
                 backoff = BACKOFF_MIN;
                 outcome
@@ -253,7 +256,7 @@ struct Session<'a> {
     garbage: u64,
 }
 
-/// The driver's state machine behind one interface. One per session, never moved in bulk.
+/// The two drivers behind their one sans-IO contract. One per session, never moved in bulk.
 #[allow(clippy::large_enum_variant)]
 enum Device {
     Scip(scip::Device),
@@ -270,100 +273,105 @@ enum Notice {
 }
 
 impl Device {
-    fn new(driver: &Driver, now: f64) -> Self {
+    fn new(driver: &Driver, now: Duration) -> Self {
         match driver {
-            Driver::Scip(config) => {
-                let mut device = scip::Device::new(config.clone());
-                device.start();
-                Self::Scip(device)
-            }
-            Driver::Xbus(config) => {
-                Self::Xbus(xbus::Device::new(*config, Duration::from_secs_f64(now)))
-            }
+            Driver::Scip(config) => Self::Scip(scip::Device::new(config.clone(), now)),
+            Driver::Xbus(config) => Self::Xbus(xbus::Device::new(*config, now)),
         }
     }
 
-    fn transmit(&mut self, now: f64) -> Option<Vec<u8>> {
+    fn poll_transmit(&mut self, now: Duration) -> Option<Vec<u8>> {
         match self {
             Self::Scip(d) => d.poll_transmit(now).map(<[u8]>::to_vec),
-            Self::Xbus(d) => d.poll_transmit().map(|f| f.as_bytes().to_vec()),
+            Self::Xbus(d) => d.poll_transmit(now).map(<[u8]>::to_vec),
         }
     }
 
-    fn input(&mut self, now: f64, bytes: &[u8]) {
+    fn handle_input(&mut self, now: Duration, bytes: &[u8]) {
         match self {
             Self::Scip(d) => d.handle_input(now, bytes),
-            Self::Xbus(d) => d.handle_input(Duration::from_secs_f64(now), bytes),
+            Self::Xbus(d) => d.handle_input(now, bytes),
         }
     }
 
-    fn timeout(&self) -> Option<f64> {
+    fn poll_timeout(&self) -> Option<Duration> {
         match self {
             Self::Scip(d) => d.poll_timeout(),
-            Self::Xbus(d) => d.poll_timeout().map(|t| t.as_secs_f64()),
+            Self::Xbus(d) => d.poll_timeout(),
         }
     }
 
-    fn handle_timeout(&mut self, now: f64) {
+    fn handle_timeout(&mut self, now: Duration) {
         match self {
             Self::Scip(d) => d.handle_timeout(now),
-            Self::Xbus(d) => d.handle_timeout(Duration::from_secs_f64(now)),
+            Self::Xbus(d) => d.handle_timeout(now),
         }
     }
 
-    fn stop(&mut self) {
+    fn stop(&mut self, now: Duration) {
         if let Self::Scip(d) = self {
-            d.stop();
+            d.stop(now);
         }
     }
 
-    /// Drains the device's events; the task logs or acts on the few that matter.
-    fn notices(&mut self, out: &mut Vec<Notice>) {
+    /// Drains the device's events: the data for the fusion, and the few the task acts on.
+    fn drain(&mut self, readings: &mut Vec<Reading>, notices: &mut Vec<Notice>) {
         match self {
             Self::Scip(d) => {
                 while let Some(event) = d.poll_event() {
-                    match event {
-                        scip::DeviceEvent::Scan(scan) => d.recycle(scan),
-                        scip::DeviceEvent::StreamStarted { .. } => out.push(Notice::Streaming),
-                        scip::DeviceEvent::DecodeError(_) => out.push(Notice::Garbage),
-                        scip::DeviceEvent::Error(e @ scip::DeviceError::StreamStalled)
-                        | scip::DeviceEvent::Error(e @ scip::DeviceError::Status { .. }) => {
-                            out.push(Notice::Warning(e.to_string()))
-                        }
-                        scip::DeviceEvent::Error(e) => out.push(Notice::Failed(e.to_string())),
-                        _ => {}
+                    if let Some(notice) = scanner_notice(&event) {
+                        notices.push(notice);
                     }
+                    readings.extend(Reading::from_scanner(event));
                 }
             }
             Self::Xbus(d) => {
                 while let Some(event) = d.poll_event() {
-                    match event {
-                        xbus::Event::Measuring => out.push(Notice::Streaming),
-                        xbus::Event::FrameDropped(_) | xbus::Event::BadMeasurement(_) => {
-                            out.push(Notice::Garbage)
-                        }
-                        xbus::Event::Failed(e) => out.push(Notice::Failed(e.to_string())),
-                        xbus::Event::DataTimeout { silent_for } => out.push(Notice::Warning(
-                            format!("IMU silent for {:.1} s", silent_for.as_secs_f64()),
-                        )),
-                        xbus::Event::DeviceError(code) => {
-                            out.push(Notice::Warning(format!("IMU reported error {code}")))
-                        }
-                        _ => {}
+                    if let Some(notice) = imu_notice(&event) {
+                        notices.push(notice);
                     }
+                    readings.extend(Reading::from_imu(event));
                 }
             }
         }
     }
 }
 
+fn scanner_notice(event: &scip::Event) -> Option<Notice> {
+    use scip::{DeviceError, Event};
+    Some(match event {
+        Event::StreamStarted { .. } => Notice::Streaming,
+        Event::DecodeError(_) => Notice::Garbage,
+        Event::Error(e @ (DeviceError::StreamStalled | DeviceError::Status { .. })) => {
+            Notice::Warning(e.to_string())
+        }
+        Event::Error(e) => Notice::Failed(e.to_string()),
+        _ => return None,
+    })
+}
+
+fn imu_notice(event: &xbus::Event) -> Option<Notice> {
+    use xbus::Event;
+    Some(match event {
+        Event::Measuring => Notice::Streaming,
+        Event::FrameDropped(_) | Event::BadMeasurement(_) => Notice::Garbage,
+        Event::Failed(e) => Notice::Failed(e.to_string()),
+        Event::DataTimeout { silent_for } => {
+            Notice::Warning(format!("IMU silent for {:.1} s", silent_for.as_secs_f64()))
+        }
+        Event::DeviceError(code) => Notice::Warning(format!("IMU reported error {code}")),
+        _ => return None,
+    })
+}
+
 impl Session<'_> {
-    fn chunk(&self, direction: Direction, log_time_ns: u64, data: &[u8]) {
+    fn chunk(&self, direction: Direction, log_time_ns: u64, data: &[u8], readings: Vec<Reading>) {
         self.queue.push(Chunk {
             sensor: self.link.index,
             direction,
             log_time_ns,
             data: data.to_vec(),
+            readings,
         });
     }
 
@@ -374,15 +382,24 @@ impl Session<'_> {
     ) -> Result<(), String> {
         loop {
             let now_ns = self.clock.now_ns();
-            let Some(bytes) = device.transmit(now_ns as f64 * 1e-9) else {
+            let Some(bytes) = device.poll_transmit(Duration::from_nanos(now_ns)) else {
                 return Ok(());
             };
             match tokio::time::timeout(WRITE_TIMEOUT, port.write_all(&bytes)).await {
-                Ok(Ok(())) => self.chunk(Direction::Tx, now_ns, &bytes),
+                Ok(Ok(())) => self.chunk(Direction::Tx, now_ns, &bytes, Vec::new()),
                 Ok(Err(e)) => return Err(format!("write to {} failed: {e}", self.link.connection)),
                 Err(_) => return Err(format!("write to {} timed out", self.link.connection)),
             }
         }
+    }
+
+    /// Decodes bytes read at `now_ns` and queues them with what they held, for the recording
+    /// and the fusion; the notices are left for [`Session::act`].
+    fn received(&self, device: &mut Device, now_ns: u64, bytes: &[u8], notices: &mut Vec<Notice>) {
+        device.handle_input(Duration::from_nanos(now_ns), bytes);
+        let mut readings = Vec::new();
+        device.drain(&mut readings, notices);
+        self.chunk(Direction::Rx, now_ns, bytes, readings);
     }
 
     fn act(&mut self, notices: &mut Vec<Notice>) -> Result<(), String> {
@@ -418,16 +435,16 @@ impl Session<'_> {
         mut port: Pin<Box<dyn Port>>,
         cancel: &CancellationToken,
     ) -> Result<(), String> {
-        let mut device = Device::new(&self.link.driver, self.clock.now_s());
+        let mut device = Device::new(&self.link.driver, self.clock.now());
         let mut buffer = vec![0u8; READ_BUFFER];
         let mut notices = Vec::new();
         loop {
             self.flush(&mut device, &mut port).await?;
-            device.notices(&mut notices);
+            device.drain(&mut Vec::new(), &mut notices);
             self.act(&mut notices)?;
-            let deadline = device.timeout().map(|t| {
-                let wait = (t - self.clock.now_s()).max(0.0);
-                tokio::time::Instant::now() + Duration::from_secs_f64(wait.min(3600.0))
+            let deadline = device.poll_timeout().map(|t| {
+                let wait = t.saturating_sub(self.clock.now());
+                tokio::time::Instant::now() + wait.min(Duration::from_secs(3600))
             });
             tokio::select! {
                 () = cancel.cancelled() => {
@@ -438,30 +455,28 @@ impl Session<'_> {
                     let now_ns = self.clock.now_ns();
                     match read {
                         Ok(0) => return Err(format!("{} closed", self.link.connection)),
-                        Ok(n) => {
-                            self.chunk(Direction::Rx, now_ns, &buffer[..n]);
-                            device.input(now_ns as f64 * 1e-9, &buffer[..n]);
-                        }
+                        Ok(n) => self.received(&mut device, now_ns, &buffer[..n], &mut notices),
                         Err(e) => return Err(format!("read from {} failed: {e}", self.link.connection)),
                     }
                 }
-                () = sleep_until(deadline) => device.handle_timeout(self.clock.now_s()),
+                () = sleep_until(deadline) => device.handle_timeout(self.clock.now()),
             }
         }
     }
 
     /// Switches a scanner's laser off on the way out, recording the exchange like any other.
     async fn stop(&self, device: &mut Device, port: &mut Pin<Box<dyn Port>>, buffer: &mut [u8]) {
-        device.stop();
+        device.stop(self.clock.now());
         if self.flush(device, port).await.is_err() {
             return;
         }
         let until = tokio::time::Instant::now() + STOP_GRACE;
+        let mut notices = Vec::new();
         while let Ok(Ok(n)) = tokio::time::timeout_at(until, port.read(buffer)).await {
             if n == 0 {
                 break;
             }
-            self.chunk(Direction::Rx, self.clock.now_ns(), &buffer[..n]);
+            self.received(device, self.clock.now_ns(), &buffer[..n], &mut notices);
         }
     }
 }

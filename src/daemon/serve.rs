@@ -427,7 +427,7 @@ impl Emulation for ScipEmulation {
         mut port: P,
         cancel: &CancellationToken,
     ) -> io::Result<()> {
-        let geometry = crate::fusion::sources::geometry_from(&self.model.parameters);
+        let geometry = super::readings::geometry_from(&self.model.parameters);
         let mut emulator = scip::Emulator::new(self.model.clone());
         let period = Duration::from_secs_f64(geometry.scan_period());
         let mut revolutions = tokio::time::interval(period);
@@ -463,7 +463,7 @@ impl Emulation for ScipEmulation {
                 }
             }
             output.clear();
-            emulator.take_output(&mut output);
+            emulator.drain_output(&mut output);
             if !output.is_empty() {
                 port.write_all(&output).await?;
             }

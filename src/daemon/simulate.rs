@@ -9,9 +9,9 @@
 
 use super::config::Config;
 use super::in_process::{Exchanged, ScipRig, XbusRig};
+use super::readings::geometry_from;
 use super::recording::{Encoding, Recorder, RecordingError};
 use crate::filter::FilterConfig;
-use crate::fusion::sources::geometry_from;
 use crate::sensors::{ImuSample, ScannerGeometry, TruthSample};
 use crate::sim::{
     ImuOutput, Oscillation, Scenario, ScenarioError, SimEvent, Simulator, Trajectory,
@@ -227,7 +227,7 @@ impl Rig {
                 let config = scip::DeviceConfig {
                     steps: Some((clamp_u16(first), clamp_u16(last))),
                     // Simulated scans never stall; a scenario may report only every tenth one.
-                    stream_timeout: 1e9,
+                    stream_timeout: std::time::Duration::from_secs(1_000_000_000),
                     ..scip::DeviceConfig::default()
                 };
                 ScannerRig {

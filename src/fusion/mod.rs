@@ -17,7 +17,6 @@ pub mod evaluate;
 pub mod monte_carlo;
 pub mod record;
 mod shared_noise;
-pub mod sources;
 
 pub use config::{FusionConfig, FusionError, FusionSettings};
 pub use record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};

@@ -2,6 +2,29 @@ use super::*;
 use crate::daemon::in_process::{Exchanged, ScipRig, XbusRig};
 use crate::daemon::recording::Direction;
 
+/// A replay's view of one sensor: the driver's receiver, then the host timing.
+struct Decoder {
+    receiver: Receiver,
+    timing: SensorTiming,
+}
+
+impl Decoder {
+    fn new(setup: SensorSetup) -> Self {
+        let encoding = match setup {
+            SensorSetup::Scanner { .. } => Encoding::Scip2,
+            SensorSetup::Imu { .. } => Encoding::Xbus,
+        };
+        Self {
+            receiver: Receiver::new(encoding),
+            timing: SensorTiming::new(setup),
+        }
+    }
+
+    fn counts(&self) -> DecodeCounts {
+        self.timing.counts()
+    }
+}
+
 const MS: u64 = 1_000_000;
 
 /// Two seconds of a URG-04LX on a simulated host clock: the handshake, then scans whose last
@@ -32,16 +55,22 @@ fn scanner_session(device_offset_ms: u32) -> (Vec<Exchanged>, Vec<u64>) {
     (chunks, step0s)
 }
 
-fn decode(decoder: &mut SensorDecoder, chunks: &[Exchanged]) -> Vec<SensorEvent> {
+fn decode(decoder: &mut Decoder, chunks: &[Exchanged]) -> Vec<SensorEvent> {
     let mut events = Vec::new();
+    let mut readings = Vec::new();
     for (_, log_time, bytes) in chunks {
-        decoder.push(*log_time, bytes, &mut events);
+        decoder.timing.received(bytes.len());
+        readings.clear();
+        decoder.receiver.decode(*log_time, bytes, &mut readings);
+        for reading in &readings {
+            decoder.timing.take(*log_time, reading, &mut events);
+        }
     }
     events
 }
 
-fn scanner_decoder() -> SensorDecoder {
-    SensorDecoder::new(SensorSetup::Scanner {
+fn scanner_decoder() -> Decoder {
+    Decoder::new(SensorSetup::Scanner {
         index: 1,
         geometry: None,
     })
@@ -126,7 +155,7 @@ fn scans_before_any_geometry_are_dropped_and_counted() {
     let events = decode(&mut decoder, &tail);
     assert!(events.is_empty());
     assert!(decoder.counts().dropped > 0);
-    let mut with_default = SensorDecoder::new(SensorSetup::Scanner {
+    let mut with_default = Decoder::new(SensorSetup::Scanner {
         index: 0,
         geometry: Some(ScannerGeometry::URG_04LX),
     });
@@ -180,8 +209,8 @@ fn imu_session(
     chunks
 }
 
-fn imu_decoder() -> SensorDecoder {
-    SensorDecoder::new(SensorSetup::Imu {
+fn imu_decoder() -> Decoder {
+    Decoder::new(SensorSetup::Imu {
         sample_time_modulus: xbus::ONE_DAY_TICKS,
         rate_hz: 50.0,
     })
