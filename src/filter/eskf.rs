@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, StationaryMeans};
-use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
+use super::config::{ConfigError, FilterConfig};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
@@ -22,6 +22,7 @@ use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
+mod relative_pose_update;
 mod zero_motion_update;
 
 /// Most covariance steps taken to bridge one IMU gap.
@@ -554,88 +555,6 @@ impl Eskf {
             q: self.state.q,
         });
         Ok(t)
-    }
-
-    /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
-    pub fn update_relative_pose(
-        &mut self,
-        measurement: &RelativePose,
-    ) -> Result<UpdateReport, UpdateError> {
-        // The carried noise is shared only with the very next relative pose: once this one is
-        // tried, fused or not, the pose after it shares nothing with the carried one.
-        let carried = self.carried.take();
-        let now = self.aligned_time()?;
-        if !measurement.is_finite() {
-            return Err(UpdateError::NonFinite);
-        }
-        if !self.bridgeable(measurement.t, now) {
-            return Err(UpdateError::TimeMismatch {
-                t: measurement.t,
-                filter_t: now,
-            });
-        }
-        if self.phase == FilterPhase::StationaryStart && self.shows_motion(measurement) {
-            self.leave_stationary_start(measurement);
-        }
-        let current = Pose {
-            t: now,
-            p: self.state.p,
-            q: self.state.q,
-        };
-        let at_ref =
-            self.history
-                .pose_at(measurement.t_ref)
-                .ok_or(UpdateError::OutsideHistory {
-                    t_ref: measurement.t_ref,
-                })?;
-        let at_t = self.pose_or_ahead(measurement.t).unwrap_or(current);
-        let (rows, kind) = match self.config.relative_pose_update {
-            RelativePoseUpdate::Cloned => {
-                let clone = self
-                    .clone
-                    .take()
-                    .filter(|c| self.bridgeable(measurement.t_ref, c.t))
-                    .ok_or(UpdateError::NoClone {
-                        t_ref: measurement.t_ref,
-                    })?;
-                // Bridge from the history's pose at the clone time, not from the clone: an
-                // update while the clone was open (the stationary start's zero-velocity
-                // updates) moved the history rigidly and the clone by its correlations, and
-                // the bridge must be motion alone.
-                let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
-                let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
-                (
-                    bridged.cloned_rows(&clone, &self.state, carried.as_ref(), &self.covariance),
-                    UpdateKind::RelativePoseCloned,
-                )
-            }
-            RelativePoseUpdate::Velocity => {
-                let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
-                (
-                    bridged.velocity_rows(
-                        &at_ref,
-                        &self.state,
-                        &self.imu_to_body,
-                        self.config.gyro_noise_density,
-                    ),
-                    UpdateKind::RelativePoseVelocity,
-                )
-            }
-        };
-        let report = self.fuse(&rows, kind, now)?;
-        if report.accepted && report.dof > 0 {
-            self.last_fused = Some(now);
-            self.degraded = None;
-            self.fused_since_start += 1;
-            self.converged |= self.fused_since_start >= self.config.converged_after_epochs;
-        }
-        if let Some(divergence) = self
-            .guard
-            .after_update(report.nis, report.dof, report.accepted)
-        {
-            self.reinitialise(ResetReason::Diverged(divergence));
-        }
-        Ok(report)
     }
 
     fn fuse(
