@@ -1,7 +1,8 @@
 //! The error-state EKF: IMU samples drive the nominal state and the covariance; odometry
 //! epochs and the stationary start correct them. Naming after PX4 EKF2 and Sola (2017).
-//! Propagation, cloning and resets are here; each measurement's update has a file of its own in
-//! `eskf/`, as in EKF2's `aid_sources/`, so that an aid is read (or added) in one place.
+//! Propagation, cloning and resets are here; each measurement's update, and the odometer's
+//! prior, has a file of its own in `eskf/`, as in EKF2's `aid_sources/`, so that an aid is read
+//! (or added) in one place.
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
@@ -12,7 +13,7 @@ use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
-use super::relative_pose::{CarriedNoise, RelativePose};
+use super::relative_pose::CarriedNoise;
 use super::state::{
     Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, CARRIED, CLONE_ATT,
     CLONE_POS, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS, VEL,
@@ -22,8 +23,11 @@ use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
+mod pose_prior;
 mod relative_pose_update;
 mod zero_motion_update;
+
+pub use pose_prior::PosePrior;
 
 /// Most covariance steps taken to bridge one IMU gap.
 const MAX_GAP_STEPS: f64 = 1000.0;
@@ -144,19 +148,6 @@ pub enum UpdateError {
     OutsideHistory { t_ref: f64 },
     #[error("measurement covariance is not positive definite: check the odometer's covariance")]
     BadCovariance,
-}
-
-/// Relative pose predicted by the filter between two times (the odometer's prior).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PosePrior {
-    /// `C_t^t_ref`: rotates body-at-t vectors into body at t_ref.
-    pub rotation: UnitQuaternion<f64>,
-    /// Body origin at t in body-at-t_ref coordinates, m.
-    pub translation: Vector3<f64>,
-    /// Covariance of the rotation vector, rad^2.
-    pub rotation_covariance: Matrix3<f64>,
-    /// Covariance of the translation, m^2.
-    pub translation_covariance: Matrix3<f64>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -745,68 +736,6 @@ impl Eskf {
         (ahead <= self.config.epoch_time_tolerance_s)
             .then(|| self.pose_at_or_after(t))
             .flatten()
-    }
-
-    /// The relative pose from `t_ref` to `t` predicted by the filter, as the odometer's prior.
-    /// Its covariance is exact (from the augmented covariance) when `t_ref` is the open
-    /// clone's time and `t` the filter time; otherwise it is the IMU error growth over the
-    /// interval: velocity and gyro-bias uncertainty times the interval plus the white noise.
-    pub fn relative_pose(&self, t_ref: f64, t: f64) -> Option<PosePrior> {
-        let reference = self.history.pose_at(t_ref)?;
-        let current = self.pose_or_ahead(t)?;
-        let (rotation, translation) = RelativePose::predict(&reference, &current);
-        let exact = self.clone.filter(|c| {
-            self.bridgeable(t_ref, c.t) && self.t.is_some_and(|now| self.bridgeable(t, now))
-        });
-        let (rotation_covariance, translation_covariance) = match exact {
-            Some(clone) => self.clone_relative_covariance(&clone, t),
-            None => self.growth_covariance(&reference, t - t_ref),
-        };
-        Some(PosePrior {
-            rotation,
-            translation,
-            rotation_covariance,
-            translation_covariance,
-        })
-    }
-
-    fn clone_relative_covariance(&self, clone: &Pose, t: f64) -> (Matrix3<f64>, Matrix3<f64>) {
-        let full = super::relative_pose::RelativeRotation {
-            rotation_vector: Vector3::zeros(),
-            covariance: Matrix3::zeros(),
-            observability: super::update::Observability::full(),
-        };
-        let probe = RelativePose {
-            t_ref: clone.t,
-            t,
-            rotation: Some(full),
-            translation: Some(super::relative_pose::RelativeTranslation {
-                displacement: Vector3::zeros(),
-                covariance: Matrix3::zeros(),
-                observability: super::update::Observability::full(),
-            }),
-            shared: None,
-        };
-        let rows = probe.cloned_rows(clone, &self.state, None, &self.covariance);
-        let s = rows.innovation_covariance(&self.covariance);
-        // The probe's noise is zero, so the covariance is H P H^T.
-        (
-            s.fixed_view::<3, 3>(0, 0).into(),
-            s.fixed_view::<3, 3>(3, 3).into(),
-        )
-    }
-
-    fn growth_covariance(&self, reference: &Pose, interval: f64) -> (Matrix3<f64>, Matrix3<f64>) {
-        let dt = interval.abs();
-        let m = self.imu_to_body.to_rotation_matrix().into_inner();
-        let bias = m * self.covariance.fixed_view::<3, 3>(GYRO_BIAS, GYRO_BIAS) * m.transpose();
-        let rotation =
-            bias * dt * dt + Matrix3::identity() * self.config.gyro_noise_density.powi(2) * dt;
-        let r_t = reference.q.to_rotation_matrix().into_inner().transpose();
-        let velocity = r_t * self.covariance.fixed_view::<3, 3>(VEL, VEL) * r_t.transpose();
-        let translation = velocity * dt * dt
-            + Matrix3::identity() * self.config.accel_noise_density.powi(2) * dt.powi(3) / 3.0;
-        (rotation, translation)
     }
 
     pub fn estimate(&self) -> Estimate {
