@@ -5,7 +5,9 @@ use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use super::Eskf;
 use crate::filter::history::Pose;
-use crate::filter::relative_pose::{RelativePose, RelativeRotation, RelativeTranslation};
+use crate::filter::relative_pose::{
+    RelativePoseMeasurement, RelativeRotation, RelativeTranslation,
+};
 use crate::filter::state::{GYRO_BIAS, VEL};
 use crate::filter::update::Observability;
 
@@ -30,7 +32,7 @@ impl Eskf {
     pub fn relative_pose(&self, t_ref: f64, t: f64) -> Option<PosePrior> {
         let reference = self.history.pose_at(t_ref)?;
         let current = self.pose_or_ahead(t)?;
-        let (rotation, translation) = RelativePose::predict(&reference, &current);
+        let (rotation, translation) = RelativePoseMeasurement::predict(&reference, &current);
         let exact = self.clone.filter(|c| {
             self.bridgeable(t_ref, c.t) && self.t.is_some_and(|now| self.bridgeable(t, now))
         });
@@ -52,7 +54,7 @@ impl Eskf {
             covariance: Matrix3::zeros(),
             observability: Observability::full(),
         };
-        let probe = RelativePose {
+        let probe = RelativePoseMeasurement {
             t_ref: clone.t,
             t,
             rotation: Some(full),

@@ -4,13 +4,13 @@
 use super::{Eskf, FilterPhase, ResetReason, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::config::RelativePoseUpdate;
 use crate::filter::history::Pose;
-use crate::filter::relative_pose::RelativePose;
+use crate::filter::relative_pose::RelativePoseMeasurement;
 
 impl Eskf {
     /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
     pub fn update_relative_pose(
         &mut self,
-        measurement: &RelativePose,
+        measurement: &RelativePoseMeasurement,
     ) -> Result<UpdateReport, UpdateError> {
         // The carried noise is shared only with the very next relative pose: once this one is
         // tried, fused or not, the pose after it shares nothing with the carried one.

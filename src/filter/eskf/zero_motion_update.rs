@@ -6,7 +6,7 @@ use nalgebra::{Matrix3, Vector3};
 use super::{Eskf, FilterPhase, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::alignment::zero_motion_rows;
 use crate::filter::chi_square_quantile;
-use crate::filter::relative_pose::RelativePose;
+use crate::filter::relative_pose::RelativePoseMeasurement;
 use crate::filter::state::{ACCEL_BIAS, ATT, VEL};
 use crate::filter::update::{Jacobian3, Observability, Stacked};
 use crate::sensors::ImuSample;
@@ -51,7 +51,7 @@ impl Eskf {
     /// Whether a relative pose contradicts the stationary start: a rotation or displacement
     /// beyond what a body at rest shows (gyro noise, `zupt_velocity_sigma_mps` of sway) with
     /// the odometer's own noise, at 1 - 1e-6.
-    pub(super) fn shows_motion(&self, measurement: &RelativePose) -> bool {
+    pub(super) fn shows_motion(&self, measurement: &RelativePoseMeasurement) -> bool {
         let interval = (measurement.t - measurement.t_ref).abs();
         let threshold = chi_square_quantile(1.0 - 1e-6, 3);
         let beyond = |value: &Vector3<f64>, covariance: &Matrix3<f64>, rest_variance: f64| {
@@ -75,7 +75,7 @@ impl Eskf {
     /// updates were false for as long as the platform has moved, so the velocity, tilt and
     /// accelerometer bias get back the uncertainty of a start in motion (added, which keeps
     /// every correlation with the open clone valid) and the estimate converges again.
-    pub(super) fn leave_stationary_start(&mut self, measurement: &RelativePose) {
+    pub(super) fn leave_stationary_start(&mut self, measurement: &RelativePoseMeasurement) {
         self.end_stationary_start();
         self.converged = false;
         self.fused_since_start = 0;
