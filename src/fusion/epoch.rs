@@ -9,12 +9,12 @@ use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, Wit
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
-use crate::estimation::Solution;
 use crate::filter::{
     Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
     RelativeTranslation,
 };
 use crate::integrity::EpochReport;
+use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
