@@ -4,7 +4,7 @@
 
 use divan::Bencher;
 use ladar_odometer::filter::{
-    Eskf, FilterConfig, NominalState, Observability, RelativePose, RelativeRotation,
+    Eskf, FilterConfig, NominalState, Observability, RelativePoseMeasurement, RelativeRotation,
     RelativeTranslation, SharedNoise,
 };
 use ladar_odometer::sensors::ImuSample;
@@ -104,11 +104,11 @@ fn relative_pose_update(bencher: Bencher) {
 
 /// A relative pose from `t_ref` to the filter time, a little off the filter's prediction, with
 /// the displacement under-determined along x and half of each covariance shared.
-fn measurement(filter: &Eskf, t_ref: f64) -> RelativePose {
+fn measurement(filter: &Eskf, t_ref: f64) -> RelativePoseMeasurement {
     let t = filter.time().unwrap();
     let prior = filter.relative_pose(t_ref, t).unwrap();
     let (rotation, displacement) = (Matrix3::identity() * 1e-6, Matrix3::identity() * 1e-4);
-    RelativePose {
+    RelativePoseMeasurement {
         t_ref,
         t,
         rotation: Some(RelativeRotation {

@@ -4,8 +4,8 @@
 
 use divan::Bencher;
 use ladar_odometer::estimate::IntegrityStatus;
-use ladar_odometer::estimation::{LinearSystem, Solution, SolveError};
 use ladar_odometer::integrity::{without_planes, IntegrityConfig, IntegrityMonitor, SolveKind};
+use ladar_odometer::least_squares::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

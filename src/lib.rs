@@ -1,15 +1,16 @@
 //! ladar-odometer: six-degree-of-freedom odometry from two 2D laser scanners and an IMU, after
 //! Zhu and Uijt de Haag, "A Robust and Efficient 3D LADAR Odometer with Outlier Detection".
 //!
-//! Dependency direction: `sensors`, `estimation`, `odometry`, `integrity` and `filter` are pure
-//! and synchronous; `fusion` wires them without I/O; only `daemon` touches tokio, ports and files.
+//! Dependency direction: `sensors`, `least_squares`, `odometry`, `integrity` and `filter` are
+//! pure and synchronous; `fusion` wires them without I/O; only `daemon` touches tokio, ports and
+//! files.
 
 pub mod daemon;
 pub mod estimate;
-pub mod estimation;
 pub mod filter;
 pub mod fusion;
 pub mod integrity;
+pub mod least_squares;
 pub mod odometry;
 pub mod report;
 pub mod sensors;

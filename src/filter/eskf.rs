@@ -1,17 +1,19 @@
 //! The error-state EKF: IMU samples drive the nominal state and the covariance; odometry
 //! epochs and the stationary start correct them. Naming after PX4 EKF2 and Sola (2017).
+//! Propagation, cloning and resets are here; each measurement's update, and the odometer's
+//! prior, has a file of its own in `eskf/`, as in EKF2's `aid_sources/`, so that an aid is read
+//! (or added) in one place.
 
 use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
-use super::chi_square_quantile;
-use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
+use super::alignment::{looks_stationary, StationaryMeans};
+use super::config::{ConfigError, FilterConfig};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
-use super::relative_pose::{CarriedNoise, RelativePose};
+use super::relative_pose::CarriedNoise;
 use super::state::{
     Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, CARRIED, CLONE_ATT,
     CLONE_POS, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS, VEL,
@@ -20,6 +22,12 @@ use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
+
+mod pose_prior;
+mod relative_pose_update;
+mod zero_motion_update;
+
+pub use pose_prior::PosePrior;
 
 /// Most covariance steps taken to bridge one IMU gap.
 const MAX_GAP_STEPS: f64 = 1000.0;
@@ -140,19 +148,6 @@ pub enum UpdateError {
     OutsideHistory { t_ref: f64 },
     #[error("measurement covariance is not positive definite: check the odometer's covariance")]
     BadCovariance,
-}
-
-/// Relative pose predicted by the filter between two times (the odometer's prior).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PosePrior {
-    /// `C_t^t_ref`: rotates body-at-t vectors into body at t_ref.
-    pub rotation: UnitQuaternion<f64>,
-    /// Body origin at t in body-at-t_ref coordinates, m.
-    pub translation: Vector3<f64>,
-    /// Covariance of the rotation vector, rad^2.
-    pub rotation_covariance: Matrix3<f64>,
-    /// Covariance of the translation, m^2.
-    pub translation_covariance: Matrix3<f64>,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -497,42 +492,6 @@ impl Eskf {
         )
     }
 
-    /// Zero-motion updates once per window; motion ends the stationary start early rather than
-    /// letting a false zero velocity into the state. A window whose mean specific force or
-    /// rate departs from the alignment's is motion, however gentle (a hover, the first
-    /// instants of a take-off), which a per-sample test cannot see.
-    fn stationary_updates(&mut self, t: f64, sample: &ImuSample, interval: f64) {
-        if !self.looks_stationary(sample) {
-            self.end_stationary_start();
-            return;
-        }
-        if let Some(window) = self.completed_window(t, sample, interval) {
-            if self.departs(&window, &self.means) {
-                self.end_stationary_start();
-                return;
-            }
-            let rows = zero_motion_rows(
-                &self.state,
-                &window.mean_rate(),
-                window.weight(),
-                self.config.zupt_velocity_sigma_mps,
-                self.config.gyro_noise_density,
-            );
-            // A rejected or failed zero-motion update only skips one window.
-            let _ = self.fuse(&rows, UpdateKind::ZeroMotion, t);
-        }
-        let start = self.t_start.unwrap_or(t);
-        if t - start >= self.config.stationary_start_s {
-            self.phase = FilterPhase::Navigating;
-        }
-    }
-
-    fn end_stationary_start(&mut self) {
-        self.counters.motion_during_start += 1;
-        self.zero_motion = None;
-        self.phase = FilterPhase::Navigating;
-    }
-
     /// Adds the sample to the current `zupt_interval_s` window and returns the window's means
     /// when it is complete.
     fn completed_window(
@@ -587,147 +546,6 @@ impl Eskf {
             q: self.state.q,
         });
         Ok(t)
-    }
-
-    /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
-    pub fn update_relative_pose(
-        &mut self,
-        measurement: &RelativePose,
-    ) -> Result<UpdateReport, UpdateError> {
-        // The carried noise is shared only with the very next relative pose: once this one is
-        // tried, fused or not, the pose after it shares nothing with the carried one.
-        let carried = self.carried.take();
-        let now = self.aligned_time()?;
-        if !measurement.is_finite() {
-            return Err(UpdateError::NonFinite);
-        }
-        if !self.bridgeable(measurement.t, now) {
-            return Err(UpdateError::TimeMismatch {
-                t: measurement.t,
-                filter_t: now,
-            });
-        }
-        if self.phase == FilterPhase::StationaryStart && self.shows_motion(measurement) {
-            self.leave_stationary_start(measurement);
-        }
-        let current = Pose {
-            t: now,
-            p: self.state.p,
-            q: self.state.q,
-        };
-        let at_ref =
-            self.history
-                .pose_at(measurement.t_ref)
-                .ok_or(UpdateError::OutsideHistory {
-                    t_ref: measurement.t_ref,
-                })?;
-        let at_t = self.pose_or_ahead(measurement.t).unwrap_or(current);
-        let (rows, kind) = match self.config.relative_pose_update {
-            RelativePoseUpdate::Cloned => {
-                let clone = self
-                    .clone
-                    .take()
-                    .filter(|c| self.bridgeable(measurement.t_ref, c.t))
-                    .ok_or(UpdateError::NoClone {
-                        t_ref: measurement.t_ref,
-                    })?;
-                // Bridge from the history's pose at the clone time, not from the clone: an
-                // update while the clone was open (the stationary start's zero-velocity
-                // updates) moved the history rigidly and the clone by its correlations, and
-                // the bridge must be motion alone.
-                let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
-                let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
-                (
-                    bridged.cloned_rows(&clone, &self.state, carried.as_ref(), &self.covariance),
-                    UpdateKind::RelativePoseCloned,
-                )
-            }
-            RelativePoseUpdate::Velocity => {
-                let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
-                (
-                    bridged.velocity_rows(
-                        &at_ref,
-                        &self.state,
-                        &self.imu_to_body,
-                        self.config.gyro_noise_density,
-                    ),
-                    UpdateKind::RelativePoseVelocity,
-                )
-            }
-        };
-        let report = self.fuse(&rows, kind, now)?;
-        if report.accepted && report.dof > 0 {
-            self.last_fused = Some(now);
-            self.degraded = None;
-            self.fused_since_start += 1;
-            self.converged |= self.fused_since_start >= self.config.converged_after_epochs;
-        }
-        if let Some(divergence) = self
-            .guard
-            .after_update(report.nis, report.dof, report.accepted)
-        {
-            self.reinitialise(ResetReason::Diverged(divergence));
-        }
-        Ok(report)
-    }
-
-    /// Whether a relative pose contradicts the stationary start: a rotation or displacement
-    /// beyond what a body at rest shows (gyro noise, `zupt_velocity_sigma_mps` of sway) with
-    /// the odometer's own noise, at 1 - 1e-6.
-    fn shows_motion(&self, measurement: &RelativePose) -> bool {
-        let interval = (measurement.t - measurement.t_ref).abs();
-        let threshold = chi_square_quantile(1.0 - 1e-6, 3);
-        let beyond = |value: &Vector3<f64>, covariance: &Matrix3<f64>, rest_variance: f64| {
-            let total = covariance + Matrix3::identity() * rest_variance;
-            total
-                .cholesky()
-                .is_some_and(|c| value.dot(&c.solve(value)) > threshold)
-        };
-        let turned = measurement.rotation.is_some_and(|r| {
-            let rest = self.config.gyro_noise_density.powi(2) * interval;
-            beyond(&r.rotation_vector, &r.covariance, rest)
-        });
-        let moved = measurement.translation.is_some_and(|d| {
-            let rest = (self.config.zupt_velocity_sigma_mps * interval).powi(2);
-            beyond(&d.displacement, &d.covariance, rest)
-        });
-        turned || moved
-    }
-
-    /// The odometry saw motion while the zero-motion updates held the filter still: those
-    /// updates were false for as long as the platform has moved, so the velocity, tilt and
-    /// accelerometer bias get back the uncertainty of a start in motion (added, which keeps
-    /// every correlation with the open clone valid) and the estimate converges again.
-    fn leave_stationary_start(&mut self, measurement: &RelativePose) {
-        self.end_stationary_start();
-        self.converged = false;
-        self.fused_since_start = 0;
-        // The zero-motion updates were wrong by at most the velocity the odometry saw (twice
-        // its mean, for margin), and that error came from a tilt and an accelerometer bias
-        // that turned it into velocity over the epoch.
-        let interval = (measurement.t - measurement.t_ref).abs().max(1e-3);
-        let seen = measurement
-            .translation
-            .map_or(0.0, |d| d.displacement.norm() / interval);
-        let velocity = (2.0 * seen + self.config.zupt_velocity_sigma_mps)
-            .min(self.config.moving_start_sigma_velocity_mps);
-        let tilt = (velocity / (self.config.gravity_mps2 * interval))
-            .min(self.config.moving_start_sigma_tilt_deg.to_radians());
-        let added = [
-            (VEL, velocity),
-            (
-                ACCEL_BIAS,
-                (velocity / interval).min(self.config.initial_sigma_accel_bias),
-            ),
-        ];
-        for (at, sigma) in added {
-            for k in 0..3 {
-                self.covariance[(at + k, at + k)] += sigma * sigma;
-            }
-        }
-        for k in 0..2 {
-            self.covariance[(ATT + k, ATT + k)] += tilt * tilt;
-        }
     }
 
     fn fuse(
@@ -918,84 +736,6 @@ impl Eskf {
         (ahead <= self.config.epoch_time_tolerance_s)
             .then(|| self.pose_at_or_after(t))
             .flatten()
-    }
-
-    /// The relative pose from `t_ref` to `t` predicted by the filter, as the odometer's prior.
-    /// Its covariance is exact (from the augmented covariance) when `t_ref` is the open
-    /// clone's time and `t` the filter time; otherwise it is the IMU error growth over the
-    /// interval: velocity and gyro-bias uncertainty times the interval plus the white noise.
-    pub fn relative_pose(&self, t_ref: f64, t: f64) -> Option<PosePrior> {
-        let reference = self.history.pose_at(t_ref)?;
-        let current = self.pose_or_ahead(t)?;
-        let (rotation, translation) = RelativePose::predict(&reference, &current);
-        let exact = self.clone.filter(|c| {
-            self.bridgeable(t_ref, c.t) && self.t.is_some_and(|now| self.bridgeable(t, now))
-        });
-        let (rotation_covariance, translation_covariance) = match exact {
-            Some(clone) => self.clone_relative_covariance(&clone, t),
-            None => self.growth_covariance(&reference, t - t_ref),
-        };
-        Some(PosePrior {
-            rotation,
-            translation,
-            rotation_covariance,
-            translation_covariance,
-        })
-    }
-
-    fn clone_relative_covariance(&self, clone: &Pose, t: f64) -> (Matrix3<f64>, Matrix3<f64>) {
-        let full = super::relative_pose::RelativeRotation {
-            rotation_vector: Vector3::zeros(),
-            covariance: Matrix3::zeros(),
-            observability: super::update::Observability::full(),
-        };
-        let probe = RelativePose {
-            t_ref: clone.t,
-            t,
-            rotation: Some(full),
-            translation: Some(super::relative_pose::RelativeTranslation {
-                displacement: Vector3::zeros(),
-                covariance: Matrix3::zeros(),
-                observability: super::update::Observability::full(),
-            }),
-            shared: None,
-        };
-        let rows = probe.cloned_rows(clone, &self.state, None, &self.covariance);
-        let s = rows.innovation_covariance(&self.covariance);
-        // The probe's noise is zero, so the covariance is H P H^T.
-        (
-            s.fixed_view::<3, 3>(0, 0).into(),
-            s.fixed_view::<3, 3>(3, 3).into(),
-        )
-    }
-
-    fn growth_covariance(&self, reference: &Pose, interval: f64) -> (Matrix3<f64>, Matrix3<f64>) {
-        let dt = interval.abs();
-        let m = self.imu_to_body.to_rotation_matrix().into_inner();
-        let bias = m * self.covariance.fixed_view::<3, 3>(GYRO_BIAS, GYRO_BIAS) * m.transpose();
-        let rotation =
-            bias * dt * dt + Matrix3::identity() * self.config.gyro_noise_density.powi(2) * dt;
-        let r_t = reference.q.to_rotation_matrix().into_inner().transpose();
-        let velocity = r_t * self.covariance.fixed_view::<3, 3>(VEL, VEL) * r_t.transpose();
-        let translation = velocity * dt * dt
-            + Matrix3::identity() * self.config.accel_noise_density.powi(2) * dt.powi(3) / 3.0;
-        (rotation, translation)
-    }
-
-    /// Zero-velocity update on demand (e.g. the vehicle is known to be on the ground).
-    pub fn update_zero_velocity(&mut self, sigma_mps: f64) -> Result<UpdateReport, UpdateError> {
-        let t = self.aligned_time()?;
-        let mut rows = Stacked::default();
-        let mut h = super::update::Jacobian3::zeros();
-        h.fixed_view_mut::<3, 3>(0, VEL)
-            .copy_from(&Matrix3::identity());
-        rows.push(
-            &-self.state.v,
-            &h,
-            &(Matrix3::identity() * sigma_mps * sigma_mps),
-            &super::update::Observability::full(),
-        );
-        self.fuse(&rows, UpdateKind::ZeroMotion, t)
     }
 
     pub fn estimate(&self) -> Estimate {

@@ -34,7 +34,7 @@ fn measured_relative_pose(
     sigma_rot: f64,
     sigma_pos: f64,
     rng: &mut ChaCha8Rng,
-) -> RelativePose {
+) -> RelativePoseMeasurement {
     let noise = [sigma_rot, sigma_pos].map(|sigma| gaussian(rng) * sigma);
     let variance = [sigma_rot * sigma_rot, sigma_pos * sigma_pos];
     relative_pose_with_noise(trajectory, t_ref, t, noise, variance)
@@ -52,10 +52,10 @@ fn relative_pose_with_noise(
     t: f64,
     noise: [Vector3<f64>; 2],
     variance: [f64; 2],
-) -> RelativePose {
+) -> RelativePoseMeasurement {
     let (a, b) = (trajectory.truth(t_ref), trajectory.truth(t));
     let c = a.q.inverse() * b.q * UnitQuaternion::from_scaled_axis(noise[0]);
-    RelativePose {
+    RelativePoseMeasurement {
         t_ref,
         t,
         rotation: Some(RelativeRotation {
@@ -205,7 +205,7 @@ fn an_update_while_a_clone_is_open_moves_the_clone_too() {
         0.0,
         &mut ChaCha8Rng::seed_from_u64(1),
     );
-    let noisy = RelativePose {
+    let noisy = RelativePoseMeasurement {
         rotation: measurement.rotation.map(|r| RelativeRotation {
             covariance: Matrix3::identity() * 1e-6,
             ..r
@@ -334,7 +334,7 @@ fn an_overflowing_sample_resets_the_filter_with_a_reason() {
     assert_eq!(filter.state(), &before);
     assert_eq!(filter.estimate().reset_counter, 1);
     assert_eq!(filter.last_reset(), Some(ResetReason::NonFinitePropagation));
-    let bad = RelativePose {
+    let bad = RelativePoseMeasurement {
         t_ref: 0.4,
         t: 0.51,
         rotation: None,
@@ -373,7 +373,7 @@ fn odometry_pose(
     odometry: Odometry,
     last_epoch: &mut [Vector3<f64>; 2],
     rng: &mut ChaCha8Rng,
-) -> RelativePose {
+) -> RelativePoseMeasurement {
     let [sigma_rot, sigma_pos] = ODOMETRY_SIGMA;
     let Odometry::Telescoping { modelled } = odometry else {
         return measured_relative_pose(trajectory, t_ref, t, sigma_rot, sigma_pos, rng);
@@ -537,7 +537,7 @@ fn a_relative_pose_that_fails_breaks_the_chain_of_shared_noise() {
     };
     let noise = ODOMETRY_SIGMA.map(Vector3::repeat);
     let variance = ODOMETRY_SIGMA.map(|sigma| 2.0 * sigma * sigma);
-    let pose = |t_ref: f64, t: f64, shared: Option<SharedNoise>| RelativePose {
+    let pose = |t_ref: f64, t: f64, shared: Option<SharedNoise>| RelativePoseMeasurement {
         shared,
         ..relative_pose_with_noise(&trajectory, t_ref, t, noise, variance)
     };
@@ -756,7 +756,7 @@ mod hostile_input {
                 if k % 10 == 0 {
                     let t_ref = filter.clone_pose().ok();
                     if let (Some(t_ref), Some(t)) = (t_ref, filter.time()) {
-                        let measurement = RelativePose {
+                        let measurement = RelativePoseMeasurement {
                             t_ref,
                             t,
                             rotation: Some(RelativeRotation {

@@ -8,7 +8,7 @@
 //!    `relative_pose(t_ref, t)` as its prior.
 //! 3. At every odometry epoch's reference time call `clone_pose()` (after feeding the IMU up
 //!    to about that time); when the epoch's solution arrives, feed the IMU up to its time and
-//!    call `update_relative_pose(&RelativePose { .. })`: it reports the NIS and whether the
+//!    call `update_relative_pose(&RelativePoseMeasurement { .. })`: it reports the NIS and whether the
 //!    gate accepted it, and consumes the clone. Missing parts are `None`; unobservable
 //!    directions come in as `Observability::from_unobservable(&directions)`.
 //! 4. `estimate()` fills the shared `Estimate` (the fusion sets `integrity`).
@@ -34,7 +34,9 @@ pub use eskf::{
     UpdateError, UpdateKind, UpdateReport,
 };
 pub use history::Pose;
-pub use relative_pose::{RelativePose, RelativeRotation, RelativeTranslation, SharedNoise};
+pub use relative_pose::{
+    RelativePoseMeasurement, RelativeRotation, RelativeTranslation, SharedNoise,
+};
 pub use state::NominalState;
 pub use update::Observability;
 

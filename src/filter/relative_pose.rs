@@ -71,9 +71,12 @@ pub struct CarriedNoise {
     pub mean: [Vector3<f64>; 2],
 }
 
-/// One odometry epoch for the filter; either part may be missing.
+/// One odometry epoch as the filter fuses it; either part may be missing (not solved, or not
+/// cleared by integrity). Unlike the odometer's `odometry::RelativePose` it has times, its
+/// rotation covariance is of a right perturbation (body-j axes), and each part says which
+/// directions it observes.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RelativePose {
+pub struct RelativePoseMeasurement {
     /// Host time of the reference epoch i, s.
     pub t_ref: f64,
     /// Host time of the current epoch j, s.
@@ -84,7 +87,7 @@ pub struct RelativePose {
     pub shared: Option<SharedNoise>,
 }
 
-impl RelativePose {
+impl RelativePoseMeasurement {
     pub fn is_finite(&self) -> bool {
         let finite =
             |m: &Matrix3<f64>, v: &Vector3<f64>| m.iter().chain(v.iter()).all(|x| x.is_finite());

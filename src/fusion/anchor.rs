@@ -9,7 +9,7 @@
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::estimation::{Solution, SolveError};
+use crate::least_squares::{Solution, SolveError};
 use crate::odometry::displacement::solve_displacement;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::{LineRef, Plane};

@@ -9,12 +9,12 @@ use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, Wit
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
-use crate::estimation::Solution;
 use crate::filter::{
-    Eskf, FilterPhase, Observability, Pose, RelativePose as FilterRelativePose, RelativeRotation,
+    Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
     RelativeTranslation,
 };
 use crate::integrity::EpochReport;
+use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
@@ -202,7 +202,10 @@ impl Fusion {
     }
 
     /// Hands the cleared relative pose to the filter, if anything was cleared.
-    fn fuse(&mut self, measurement: &FilterRelativePose) -> (EpochOutcome, Option<UpdateSummary>) {
+    fn fuse(
+        &mut self,
+        measurement: &RelativePoseMeasurement,
+    ) -> (EpochOutcome, Option<UpdateSummary>) {
         if measurement.rotation.is_none() && measurement.translation.is_none() {
             return (EpochOutcome::NotFused, None);
         }
@@ -288,7 +291,7 @@ impl Fusion {
 }
 
 /// The filter measurement from the cleared solves.
-fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelativePose {
+fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> RelativePoseMeasurement {
     let rotation = cleared.rotation.as_ref().map(|solution| {
         // The odometer's covariance is of a left perturbation in body-i axes; the filter's
         // residual is a right one, in body-j axes: Exp(a) C = C Exp(C^T a).
@@ -314,7 +317,7 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> FilterRelat
             covariance: symmetric(solution.covariance) * scale,
             observability: cleared.displacement_observability,
         });
-    FilterRelativePose {
+    RelativePoseMeasurement {
         t_ref,
         t,
         rotation,

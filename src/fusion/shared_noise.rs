@@ -11,8 +11,8 @@
 
 use nalgebra::{DMatrix, Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 
-use crate::estimation::Solution;
 use crate::filter::SharedNoise;
+use crate::least_squares::Solution;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::Plane;
 use crate::odometry::tangent_basis;

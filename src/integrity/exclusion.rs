@@ -28,7 +28,7 @@ use super::parity::{test_system, SolveTest, Untestable};
 use super::thresholds::Thresholds;
 use super::ConfigError;
 use crate::estimate::IntegrityStatus;
-use crate::estimation::{LinearSystem, Solution, SolveError};
+use crate::least_squares::{LinearSystem, Solution, SolveError};
 use serde::{Serialize, Serializer};
 
 /// Two planes' tests correlated at least this much in a solve are told apart there by noise

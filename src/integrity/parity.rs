@@ -29,7 +29,7 @@
 
 use super::protection::{protection_levels, ProtectionLevels};
 use super::thresholds::Thresholds;
-use crate::estimation::LinearSystem;
+use crate::least_squares::LinearSystem;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3xX, Vector3};
 use serde::Serialize;
 use thiserror::Error;
@@ -52,7 +52,7 @@ pub enum Untestable {
     #[error("malformed system: {0}")]
     Malformed(&'static str),
     #[error("solve failed: {0}")]
-    Solve(crate::estimation::SolveError),
+    Solve(crate::least_squares::SolveError),
 }
 
 /// The parity space of a system, kept for callers that want to look inside the test.

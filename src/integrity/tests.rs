@@ -2,7 +2,7 @@
 
 use super::*;
 use crate::estimate::IntegrityStatus;
-use crate::estimation::{LinearSystem, Solution, SolveError};
+use crate::least_squares::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Vector3};
 use proptest::prelude::*;
 use rand::{Rng, SeedableRng};
@@ -598,7 +598,7 @@ fn solution_without_checks(system: &LinearSystem) -> Solution {
         covariance: nalgebra::Matrix3::identity(),
         residuals: system.y.clone(),
         system: system.clone(),
-        dilution: crate::estimation::Dilution {
+        dilution: crate::least_squares::Dilution {
             per_axis: Vector3::zeros(),
             condition: f64::INFINITY,
         },

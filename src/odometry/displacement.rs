@@ -13,8 +13,8 @@
 
 use super::matching::PlaneMatch;
 use super::planes::Plane;
-use crate::estimation::PARALLEL_TOLERANCE;
-use crate::estimation::{LinearSystem, Solution, SolveError};
+use crate::least_squares::PARALLEL_TOLERANCE;
+use crate::least_squares::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
 
 struct PlaneRow {

@@ -19,7 +19,7 @@ pub mod rotation;
 pub mod synthetic;
 pub mod uncertainty;
 
-use crate::estimation::{Solution, SolveError};
+use crate::least_squares::{Solution, SolveError};
 use crate::sensors::{Mount, Scan, ScannerGeometry};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use lines::{LineExtractor, LineParameters, Segment};

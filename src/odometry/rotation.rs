@@ -13,7 +13,7 @@
 use super::matching::PlaneMatch;
 use super::planes::Plane;
 use super::tangent_basis;
-use crate::estimation::{
+use crate::least_squares::{
     directions_below, weakest_directions, LinearSystem, Solution, SolveError, PARALLEL_TOLERANCE,
 };
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x2, UnitQuaternion, Vector2, Vector3};

@@ -714,7 +714,7 @@ proptest! {
             n * n.transpose()
         }).sum();
         let eigen = information.symmetric_eigenvalues();
-        let tolerance = crate::estimation::PARALLEL_TOLERANCE;
+        let tolerance = crate::least_squares::PARALLEL_TOLERANCE;
         if eigen.min() <= tolerance * eigen.max() {
             // e.g. only floor, ceiling and the two side walls matched: no plane across the hall.
             let refused = matches!(epoch.displacement, Err(SolveError::UnderDetermined { .. }));

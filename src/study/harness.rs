@@ -4,7 +4,7 @@
 //! a moved patch is known exactly.
 
 use super::StudyError;
-use crate::estimation::SolveError;
+use crate::least_squares::SolveError;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::{
     EpochPlanes, Odometer, OdometryConfig, OdometryEpoch, RelativePose, ScannerSetup,

@@ -54,7 +54,7 @@ impl PairOutcome {
 
     /// Each solve tested on its own with the whole false-alarm budget, before any exclusion.
     pub fn solo_tests(&self, monitor: &IntegrityMonitor) -> [Option<SolveTest>; 2] {
-        let test = |kind, solved: &Result<crate::estimation::Solution, _>| {
+        let test = |kind, solved: &Result<crate::least_squares::Solution, _>| {
             solved
                 .as_ref()
                 .ok()

@@ -1,0 +1,91 @@
+//! The odometry epoch's update: the relative pose, bridged to the clone and the current pose,
+//! fused against the clone (`Cloned`) or as a mean velocity and rate (`Velocity`).
+
+use super::{Eskf, FilterPhase, ResetReason, UpdateError, UpdateKind, UpdateReport};
+use crate::filter::config::RelativePoseUpdate;
+use crate::filter::history::Pose;
+use crate::filter::relative_pose::RelativePoseMeasurement;
+
+impl Eskf {
+    /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
+    pub fn update_relative_pose(
+        &mut self,
+        measurement: &RelativePoseMeasurement,
+    ) -> Result<UpdateReport, UpdateError> {
+        // The carried noise is shared only with the very next relative pose: once this one is
+        // tried, fused or not, the pose after it shares nothing with the carried one.
+        let carried = self.carried.take();
+        let now = self.aligned_time()?;
+        if !measurement.is_finite() {
+            return Err(UpdateError::NonFinite);
+        }
+        if !self.bridgeable(measurement.t, now) {
+            return Err(UpdateError::TimeMismatch {
+                t: measurement.t,
+                filter_t: now,
+            });
+        }
+        if self.phase == FilterPhase::StationaryStart && self.shows_motion(measurement) {
+            self.leave_stationary_start(measurement);
+        }
+        let current = Pose {
+            t: now,
+            p: self.state.p,
+            q: self.state.q,
+        };
+        let at_ref =
+            self.history
+                .pose_at(measurement.t_ref)
+                .ok_or(UpdateError::OutsideHistory {
+                    t_ref: measurement.t_ref,
+                })?;
+        let at_t = self.pose_or_ahead(measurement.t).unwrap_or(current);
+        let (rows, kind) = match self.config.relative_pose_update {
+            RelativePoseUpdate::Cloned => {
+                let clone = self
+                    .clone
+                    .take()
+                    .filter(|c| self.bridgeable(measurement.t_ref, c.t))
+                    .ok_or(UpdateError::NoClone {
+                        t_ref: measurement.t_ref,
+                    })?;
+                // Bridge from the history's pose at the clone time, not from the clone: an
+                // update while the clone was open (the stationary start's zero-velocity
+                // updates) moved the history rigidly and the clone by its correlations, and
+                // the bridge must be motion alone.
+                let clone_in_history = self.history.pose_at(clone.t).unwrap_or(clone);
+                let bridged = measurement.bridged(&clone_in_history, &at_ref, &at_t, &current);
+                (
+                    bridged.cloned_rows(&clone, &self.state, carried.as_ref(), &self.covariance),
+                    UpdateKind::RelativePoseCloned,
+                )
+            }
+            RelativePoseUpdate::Velocity => {
+                let bridged = measurement.bridged(&at_ref, &at_ref, &at_t, &current);
+                (
+                    bridged.velocity_rows(
+                        &at_ref,
+                        &self.state,
+                        &self.imu_to_body,
+                        self.config.gyro_noise_density,
+                    ),
+                    UpdateKind::RelativePoseVelocity,
+                )
+            }
+        };
+        let report = self.fuse(&rows, kind, now)?;
+        if report.accepted && report.dof > 0 {
+            self.last_fused = Some(now);
+            self.degraded = None;
+            self.fused_since_start += 1;
+            self.converged |= self.fused_since_start >= self.config.converged_after_epochs;
+        }
+        if let Some(divergence) = self
+            .guard
+            .after_update(report.nis, report.dof, report.accepted)
+        {
+            self.reinitialise(ResetReason::Diverged(divergence));
+        }
+        Ok(report)
+    }
+}
