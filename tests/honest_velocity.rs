@@ -5,7 +5,6 @@
 //! release-mode runs: `cargo test --release --test honest_velocity -- --ignored --nocapture`.
 
 use ladar_odometer::daemon::mavlink_out::QualityPolicy;
-use ladar_odometer::fusion::evaluate::scanner_setups;
 use ladar_odometer::fusion::{Fusion, FusionSettings};
 use ladar_odometer::sim::{Scenario, SimEvent, Simulator};
 use nalgebra::Vector3;
@@ -91,7 +90,7 @@ fn fly(trial: &Trial) -> Vec<Message> {
     let mut settings = FusionSettings::default();
     settings.odometry.accept_parallel_lines = true;
     settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
-    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let policy = QualityPolicy::default();
     let trajectory = trial.scenario.trajectory.clone();
     let silenced = |t: f64, imu: bool| trial.outage.is_some_and(|o| o.silences(t, imu));

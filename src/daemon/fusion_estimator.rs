@@ -167,7 +167,6 @@ impl Estimator for FusionEstimator {
 #[cfg(test)]
 mod tests {
     use crate::filter::eskf::FilterPhase;
-    use crate::fusion::evaluate::scanner_setups;
     use crate::fusion::{EpochOutcome, Fusion, FusionSettings};
     use crate::sim::{Scenario, SimEvent, Simulator};
 
@@ -178,7 +177,7 @@ mod tests {
         let mut settings = FusionSettings::default();
         settings.odometry.accept_parallel_lines = true;
         let mut simulator = Simulator::new(&scenario).unwrap();
-        let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+        let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
         let (mut last_imu_estimate, mut fused) = (None, 0);
         for event in simulator.events() {
             let scan = match event {

@@ -4,8 +4,8 @@
 
 use super::mavlink_out::QualityPolicy;
 use crate::estimate::Estimate;
-use crate::fusion::evaluate::ErrorSeries;
 use crate::sensors::TruthSample;
+use nalgebra::{UnitQuaternion, Vector3};
 
 /// Velocity and attitude errors of the estimates against `/truth`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -115,6 +115,80 @@ pub(crate) fn nearest_in_time<T>(items: &[T], t: f64, time: impl Fn(&T) -> f64) 
         .flatten()
         .filter_map(|i| items.get(i))
         .min_by(|a, b| (time(a) - t).abs().total_cmp(&(time(b) - t).abs()))
+}
+
+/// Velocity (NED, m/s) and roll/pitch/yaw (Euler angle, mrad) errors against truth, per axis:
+/// the figures both the replay summary and the lab's scenario evaluation report.
+#[derive(Debug, Default, Clone)]
+pub struct ErrorSeries {
+    velocity: Vec<Vector3<f64>>,
+    attitude: Vec<Vector3<f64>>,
+}
+
+impl ErrorSeries {
+    pub fn push(
+        &mut self,
+        velocity: &Vector3<f64>,
+        attitude: &UnitQuaternion<f64>,
+        truth: &TruthSample,
+    ) {
+        self.velocity.push(velocity - truth.v);
+        let (r, p, y) = attitude.euler_angles();
+        let (tr, tp, ty) = truth.q.euler_angles();
+        self.attitude
+            .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+    }
+
+    pub fn len(&self) -> usize {
+        self.velocity.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.velocity.is_empty()
+    }
+
+    pub fn velocity_std(&self) -> [f64; 3] {
+        std_dev(&self.velocity)
+    }
+
+    pub fn velocity_rms(&self) -> [f64; 3] {
+        rms(&self.velocity)
+    }
+
+    pub fn attitude_std_mrad(&self) -> [f64; 3] {
+        std_dev(&self.attitude)
+    }
+
+    pub fn attitude_rms_mrad(&self) -> [f64; 3] {
+        rms(&self.attitude)
+    }
+}
+
+fn wrap(angle: f64) -> f64 {
+    let tau = std::f64::consts::TAU;
+    angle - tau * (angle / tau).round()
+}
+
+fn mean(values: &[Vector3<f64>]) -> Vector3<f64> {
+    values.iter().sum::<Vector3<f64>>() / values.len().max(1) as f64
+}
+
+fn std_dev(values: &[Vector3<f64>]) -> [f64; 3] {
+    let mean = mean(values);
+    let n = values.len().max(2) as f64 - 1.0;
+    let sum = values
+        .iter()
+        .map(|v| (v - mean).component_mul(&(v - mean)))
+        .sum::<Vector3<f64>>();
+    (sum / n).map(f64::sqrt).into()
+}
+
+fn rms(values: &[Vector3<f64>]) -> [f64; 3] {
+    let sum = values
+        .iter()
+        .map(|v| v.component_mul(v))
+        .sum::<Vector3<f64>>();
+    (sum / values.len().max(1) as f64).map(f64::sqrt).into()
 }
 
 #[cfg(test)]

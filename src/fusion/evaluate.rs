@@ -7,10 +7,10 @@ use serde::Serialize;
 
 use super::record::{EpochOutcome, EpochRecord};
 use super::{Fusion, FusionError, FusionSettings};
+use crate::daemon::truth::ErrorSeries;
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::state::{Covariance, ATT, POS, VEL};
 use crate::filter::{mean_nees_interval, Eskf};
-use crate::odometry::ScannerSetup;
 use crate::sensors::TruthSample;
 use crate::sim::{Scenario, ScenarioError, SimEvent, Simulator};
 
@@ -211,7 +211,7 @@ pub fn run_scenario_recorded(
         .ok_or_else(|| EvaluationError::NoImu(scenario.name.clone()))?;
     let mut settings = settings.clone();
     settings.filter.imu_mount_rpy_deg = imu.mount_rpy_deg;
-    let setups = scanner_setups(&simulator).ok_or_else(|| {
+    let setups = simulator.scanner_setups().ok_or_else(|| {
         EvaluationError::ScannerCount(scenario.name.clone(), simulator.scanners().len())
     })?;
     let from_s = settings.filter.stationary_start_s;
@@ -276,66 +276,6 @@ pub fn run_scenario_recorded(
         nis.0 / nis.1.max(1) as f64,
     );
     Ok(RecordedRun { report, nees })
-}
-
-/// The simulator's scanners as the fusion needs them.
-pub fn scanner_setups(simulator: &Simulator) -> Option<[ScannerSetup; 2]> {
-    let scanners = simulator.scanners();
-    if scanners.len() != 2 {
-        return None;
-    }
-    Some([0, 1].map(|k| ScannerSetup {
-        geometry: *scanners[k].geometry(),
-        mount: *scanners[k].mount(),
-        range_sigma_m: Some(scanners[k].range_sigma_m()),
-    }))
-}
-
-/// Velocity (NED, m/s) and roll/pitch/yaw (Euler angle, mrad) errors against truth, per axis:
-/// the figures both this evaluation and the replay summary report.
-#[derive(Debug, Default, Clone)]
-pub struct ErrorSeries {
-    velocity: Vec<Vector3<f64>>,
-    attitude: Vec<Vector3<f64>>,
-}
-
-impl ErrorSeries {
-    pub fn push(
-        &mut self,
-        velocity: &Vector3<f64>,
-        attitude: &UnitQuaternion<f64>,
-        truth: &TruthSample,
-    ) {
-        self.velocity.push(velocity - truth.v);
-        let (r, p, y) = attitude.euler_angles();
-        let (tr, tp, ty) = truth.q.euler_angles();
-        self.attitude
-            .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
-    }
-
-    pub fn len(&self) -> usize {
-        self.velocity.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.velocity.is_empty()
-    }
-
-    pub fn velocity_std(&self) -> [f64; 3] {
-        std_dev(&self.velocity)
-    }
-
-    pub fn velocity_rms(&self) -> [f64; 3] {
-        rms(&self.velocity)
-    }
-
-    pub fn attitude_std_mrad(&self) -> [f64; 3] {
-        std_dev(&self.attitude)
-    }
-
-    pub fn attitude_rms_mrad(&self) -> [f64; 3] {
-        rms(&self.attitude)
-    }
 }
 
 #[derive(Debug, Default)]
@@ -429,31 +369,4 @@ fn normalised(error: &SVector<f64, 9>, covariance: &Covariance, indices: &[usize
     let sub = DMatrix::from_fn(n, n, |i, j| covariance[(indices[i], indices[j])]);
     let e = DVector::from_fn(n, |i, _| error[indices[i]]);
     Some(sub.cholesky()?.solve(&e).dot(&e))
-}
-
-fn wrap(angle: f64) -> f64 {
-    let tau = std::f64::consts::TAU;
-    angle - tau * (angle / tau).round()
-}
-
-fn mean(values: &[Vector3<f64>]) -> Vector3<f64> {
-    values.iter().sum::<Vector3<f64>>() / values.len().max(1) as f64
-}
-
-fn std_dev(values: &[Vector3<f64>]) -> [f64; 3] {
-    let mean = mean(values);
-    let n = values.len().max(2) as f64 - 1.0;
-    let sum = values
-        .iter()
-        .map(|v| (v - mean).component_mul(&(v - mean)))
-        .sum::<Vector3<f64>>();
-    (sum / n).map(f64::sqrt).into()
-}
-
-fn rms(values: &[Vector3<f64>]) -> [f64; 3] {
-    let sum = values
-        .iter()
-        .map(|v| v.component_mul(v))
-        .sum::<Vector3<f64>>();
-    (sum / values.len().max(1) as f64).map(f64::sqrt).into()
 }

@@ -1,5 +1,4 @@
 use super::*;
-use crate::fusion::evaluate::scanner_setups;
 use crate::sensors::{Mount, ScannerGeometry};
 use crate::sim::{Scenario, SimEvent, Simulator};
 
@@ -132,7 +131,7 @@ fn drive(
     mut before_scan: impl FnMut(&mut Fusion, &Scan),
 ) -> (Vec<Estimate>, Vec<EpochRecord>, Fusion) {
     let mut simulator = Simulator::new(scenario).unwrap();
-    let mut fusion = Fusion::new(settings.clone(), scanner_setups(&simulator).unwrap()).unwrap();
+    let mut fusion = Fusion::new(settings.clone(), simulator.scanner_setups().unwrap()).unwrap();
     let (mut estimates, mut records) = (Vec::new(), Vec::new());
     for event in simulator.events() {
         match event {
@@ -195,7 +194,7 @@ fn a_silent_scanner_degrades_the_estimates() {
     let (scenario, mut settings) = short_hover(4.0);
     settings.fusion.scan_stale_s = 0.5;
     let mut simulator = Simulator::new(&scenario).unwrap();
-    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let mut estimates = Vec::new();
     for event in simulator.events() {
         match event {
@@ -224,7 +223,7 @@ fn too_few_planes_fuse_nothing_and_say_why() {
     let (scenario, settings) = short_hover(4.0);
     // Blank out most of both scans: at most the walls beside the scanner remain.
     let mut simulator = Simulator::new(&scenario).unwrap();
-    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let mut records = Vec::new();
     for event in simulator.events() {
         match event {
@@ -260,7 +259,7 @@ fn pairs_complete_before_the_imu_reaches_them_are_still_fused() {
     let (scenario, settings) = short_hover(6.0);
     let late_s = 0.03;
     let mut simulator = Simulator::new(&scenario).unwrap();
-    let mut fusion = Fusion::new(settings, scanner_setups(&simulator).unwrap()).unwrap();
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let mut held: std::collections::VecDeque<ImuSample> = Default::default();
     let (mut outcomes, mut ahead_of_imu) = (Vec::new(), 0);
     for event in simulator.events() {

@@ -29,6 +29,7 @@ pub use scenario::{Scenario, ScenarioError, BUILTIN_NAMES};
 pub use scene::{Motion, Patch, PlacedPatch, Profile, Scene, TruePlane};
 pub use trajectory::{Kinematics, Oscillation, Trajectory};
 
+use crate::odometry::ScannerSetup;
 use crate::sensors::{ImuSample, Scan, TruthSample};
 use imu::ImuGenerator;
 use rand::SeedableRng;
@@ -137,6 +138,19 @@ impl Simulator {
     /// The scanners in scenario order (index = `Scan::sensor`): geometry, mount, range sigma.
     pub fn scanners(&self) -> &[SimScanner] {
         &self.scanners
+    }
+
+    /// The two scanners as the fusion and the odometer take them; `None` unless there are two.
+    pub fn scanner_setups(&self) -> Option<[ScannerSetup; 2]> {
+        let scanners = self.scanners();
+        if scanners.len() != 2 {
+            return None;
+        }
+        Some([0, 1].map(|k| ScannerSetup {
+            geometry: *scanners[k].geometry(),
+            mount: *scanners[k].mount(),
+            range_sigma_m: Some(scanners[k].range_sigma_m()),
+        }))
     }
 
     pub fn imu(&self) -> Option<&ImuConfig> {
