@@ -10,11 +10,11 @@
 //! - Errors with and without exclusion: consecutive epochs 1 s apart (1 Hz). The truth is no
 //!   motion, so the solved rotation and displacement are the errors.
 
-use super::harness::{LabelledEpoch, Rig};
-use super::pairs::{check_pair, PairOutcome};
-use super::{paper_config, StudyError};
-use crate::integrity::{chi_square_upper_quantile, IntegrityConfig, IntegrityMonitor};
-use crate::sim::{Motion, Scenario};
+use ladar_odometer::integrity::{chi_square_upper_quantile, IntegrityConfig, IntegrityMonitor};
+use ladar_odometer::sim::{Motion, Scenario};
+use ladar_odometer::study::{
+    check_pair, paper_config, LabelledEpoch, PairOutcome, Rig, StudyError,
+};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;

@@ -5,14 +5,14 @@
 use nalgebra::{DMatrix, DVector, SVector, UnitQuaternion, Vector3};
 use serde::Serialize;
 
-use super::record::{EpochOutcome, EpochRecord};
-use super::{Fusion, FusionError, FusionSettings};
-use crate::daemon::truth::ErrorSeries;
-use crate::estimate::{Estimate, IntegrityStatus};
-use crate::filter::state::{Covariance, ATT, POS, VEL};
-use crate::filter::{mean_nees_interval, Eskf};
-use crate::sensors::TruthSample;
-use crate::sim::{Scenario, ScenarioError, SimEvent, Simulator};
+use ladar_odometer::daemon::truth::ErrorSeries;
+use ladar_odometer::estimate::{Estimate, IntegrityStatus};
+use ladar_odometer::filter::state::{Covariance, ATT, POS, VEL};
+use ladar_odometer::filter::{mean_nees_interval, Eskf};
+use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
+use ladar_odometer::fusion::{Fusion, FusionError, FusionSettings};
+use ladar_odometer::sensors::TruthSample;
+use ladar_odometer::sim::{Scenario, ScenarioError, SimEvent, Simulator};
 
 /// Estimates are compared with truth every this many IMU samples (10 Hz at 400 Hz).
 const COMPARE_EVERY: u64 = 40;

@@ -15,11 +15,11 @@ use rand_distr::StandardNormal;
 use serde::Serialize;
 use statrs::distribution::{ContinuousCDF, StudentsT};
 
-use super::evaluate::{run_scenario_recorded, EvaluationError, NeesPart, NeesSample, RecordedRun};
-use super::FusionSettings;
-use crate::filter::{mean_nees_interval, FilterConfig};
-use crate::sim::Scenario;
-use crate::sim::TriadErrors;
+use crate::evaluate::{run_scenario_recorded, EvaluationError, NeesPart, NeesSample, RecordedRun};
+use ladar_odometer::filter::{mean_nees_interval, FilterConfig};
+use ladar_odometer::fusion::FusionSettings;
+use ladar_odometer::sim::Scenario;
+use ladar_odometer::sim::TriadErrors;
 
 /// Where each run's IMU turn-on biases and scale factors come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -123,7 +123,7 @@ pub fn run_monte_carlo(
     let (series, reports): (Vec<_>, Vec<_>) = runs.into_iter().map(|r| (r.nees, r.report)).unzip();
     let times = common_times(&series)?;
     let runs = reports.len() as f64;
-    let mean_of = |f: &dyn Fn(&super::evaluate::AccuracyReport) -> f64| {
+    let mean_of = |f: &dyn Fn(&crate::evaluate::AccuracyReport) -> f64| {
         reports.iter().map(f).sum::<f64>() / runs
     };
     Ok(MonteCarloReport {

@@ -3,13 +3,13 @@
 //! the 0.1 m translated and 5.7 deg rotated plane, the false-alarm rate, and exclusion of a
 //! plane moved by twice its MDB in a six-plane variant of the scene.
 
-use super::harness::{Fault, Rig};
-use super::integrity_check::{plane_figures, studied_planes, PlaneFigures};
-use super::pairs::{run_pair, PairOutcome};
-use super::{paper_config, StudyError};
-use crate::integrity::{IntegrityConfig, IntegrityMonitor, Thresholds};
-use crate::least_squares::LinearSystem;
-use crate::sim::{PaperBias, Patch, Scenario};
+use ladar_odometer::integrity::{IntegrityConfig, IntegrityMonitor, Thresholds};
+use ladar_odometer::least_squares::LinearSystem;
+use ladar_odometer::sim::{PaperBias, Patch, Scenario};
+use ladar_odometer::study::{
+    paper_config, plane_figures, run_pair, studied_planes, Fault, PairOutcome, PlaneFigures, Rig,
+    StudyError,
+};
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;
@@ -133,7 +133,7 @@ fn pairs(
 
 fn mean_gamma(
     outcomes: &[PairOutcome],
-    test: impl Fn(&PairOutcome) -> Option<&crate::integrity::SolveTest>,
+    test: impl Fn(&PairOutcome) -> Option<&ladar_odometer::integrity::SolveTest>,
 ) -> f64 {
     let gammas: Vec<f64> = outcomes
         .iter()

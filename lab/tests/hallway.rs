@@ -9,12 +9,10 @@
 //! daemon's replay uses them) apply. The "pitch-only" comparison sets the roll back to 0, the
 //! rig before the change, where the floor and end-wall lines are parallel.
 
+use ladar_lab::evaluate::{run_scenario, run_scenario_with, AccuracyReport, NeesPart};
+use ladar_lab::monte_carlo::{run_monte_carlo, MonteCarloReport, MonteCarloSettings, UnitErrors};
 use ladar_odometer::estimate::IntegrityStatus;
 use ladar_odometer::filter::RelativePoseUpdate;
-use ladar_odometer::fusion::evaluate::{run_scenario, run_scenario_with, AccuracyReport, NeesPart};
-use ladar_odometer::fusion::monte_carlo::{
-    run_monte_carlo, MonteCarloReport, MonteCarloSettings, UnitErrors,
-};
 use ladar_odometer::fusion::FusionSettings;
 use ladar_odometer::sim::{Scenario, Trajectory};
 

@@ -2,9 +2,10 @@
 //! seconds each). The figures of docs/figures.md come from the `#[ignore]`d `print_*` runs:
 //! `RUNS=10000 cargo test -p ladar-odometer --release --test integrity_studies -- --ignored --nocapture --test-threads 1`
 
-use ladar_odometer::study::{
-    door_figures, integrity_check, paper_figures, paper_sigma_table, IntegrityCheckArgs, StudyError,
-};
+use ladar_lab::door::door_figures;
+use ladar_lab::paper::paper_figures;
+use ladar_lab::sigma::paper_sigma_table;
+use ladar_odometer::study::{integrity_check, IntegrityCheckArgs, StudyError};
 
 fn runs_from_env() -> usize {
     std::env::var("RUNS")

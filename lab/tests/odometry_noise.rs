@@ -10,7 +10,7 @@
 //!
 //! `cargo test --release --test odometry_noise -- --ignored --nocapture`
 
-use ladar_odometer::fusion::evaluate::{run_scenario_with, AccuracyReport};
+use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
 use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
 use ladar_odometer::fusion::FusionSettings;
 use ladar_odometer::sim::{Motion, Profile, Scenario, Trajectory};

@@ -162,14 +162,9 @@ fn hallway_scenarios_solve_with_honest_covariances() {
 fn a_side_wall_seen_by_crossing_lines_is_found_with_honest_sigmas() {
     let scenario = Scenario::builtin("hallway-hover").unwrap();
     let runs = 300;
-    let table = ladar_odometer::study::plane_sigma_table(
-        &scenario,
-        &OdometryConfig::default(),
-        0.0,
-        runs,
-        5,
-    )
-    .unwrap();
+    let table =
+        ladar_lab::sigma::plane_sigma_table(&scenario, &OdometryConfig::default(), 0.0, runs, 5)
+            .unwrap();
     println!("{table}");
     let wall = table.rows.iter().find(|r| r.plane == "left-wall").unwrap();
     assert!(wall.found * 10 >= runs * 9, "{table}");
@@ -193,14 +188,9 @@ fn hallway_planes_mid_hover_have_honest_sigmas_and_no_distance_bias() {
         patch.motion = Default::default();
     }
     for t in [45.0, 60.0] {
-        let table = ladar_odometer::study::plane_sigma_table(
-            &scenario,
-            &OdometryConfig::default(),
-            t,
-            1000,
-            1,
-        )
-        .unwrap();
+        let table =
+            ladar_lab::sigma::plane_sigma_table(&scenario, &OdometryConfig::default(), t, 1000, 1)
+                .unwrap();
         println!("{table}");
         for surface in ["floor", "left-wall", "cabinet.-x", "cabinet.+y"] {
             let row = table.rows.iter().find(|r| r.plane == surface).unwrap();

@@ -1,5 +1,5 @@
 //! The replay's comparison of estimates with a simulated recording's `/truth`, in the figures
-//! `fusion::evaluate` reports on the same scenario: per-axis NED velocity and roll/pitch/yaw
+//! the lab's `evaluate` reports on the same scenario: per-axis NED velocity and roll/pitch/yaw
 //! errors, after the filter's stationary start (alignment is not accuracy).
 
 use super::mavlink_out::QualityPolicy;

@@ -5,16 +5,13 @@
 //! `Fusion` pairs the latest scan of each scanner into an odometry epoch at the configured rate
 //! (`epoch`), deskews them with the filter's pose history, extracts planes, matches them with
 //! the previous epoch's under the filter's relative-pose prior, solves, runs integrity and fuses
-//! the relative pose against the clone of the pose at the previous epoch. `evaluate` drives the
-//! simulator through it and measures the accuracy against truth.
+//! the relative pose against the clone of the pose at the previous epoch.
 
 mod anchor;
 pub mod clock;
 pub mod config;
 mod confirmation;
 mod epoch;
-pub mod evaluate;
-pub mod monte_carlo;
 pub mod record;
 mod shared_noise;
 

@@ -271,7 +271,7 @@ fn displacement_statistics(monitor: &IntegrityMonitor, outcomes: &[PairOutcome])
 }
 
 /// Labels of the planes matched in at least half of the pairs, most often seen first.
-pub(super) fn studied_planes(outcomes: &[PairOutcome], runs: usize) -> Vec<PlaneLabel> {
+pub fn studied_planes(outcomes: &[PairOutcome], runs: usize) -> Vec<PlaneLabel> {
     let mut counts: Vec<(PlaneLabel, usize)> = Vec::new();
     for outcome in outcomes {
         for k in 0..outcome.epoch.matches.len() {
@@ -350,7 +350,7 @@ impl RowSums {
 
 /// Per-plane figures over the fault-free pairs in which the plane was matched and both solves
 /// passed untouched.
-pub(super) fn plane_figures(
+pub fn plane_figures(
     rig: &Rig,
     outcomes: &[PairOutcome],
     label: &PlaneLabel,

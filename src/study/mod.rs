@@ -3,28 +3,17 @@
 //! (sec. 4.1), the office door (sec. 4.2), and the `integrity-check` entry point for any
 //! scenario. Everything is seeded and deterministic.
 
-mod door;
 mod harness;
 mod integrity_check;
 mod pairs;
-mod paper;
-mod sigma;
 
-pub use door::{door_figures, AngleBin, DoorFigures, ErrorFigures};
 pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
 pub use integrity_check::{
-    integrity_check, integrity_check_with_progress, pairs_to_run, DetectionRow, FalseAlarms,
-    IntegrityCheckArgs, IntegrityCheckReport, PlaneDetection, PlaneFigures, RowFigures,
-    TestStatistics, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
+    integrity_check, integrity_check_with_progress, pairs_to_run, plane_figures, studied_planes,
+    DetectionRow, FalseAlarms, IntegrityCheckArgs, IntegrityCheckReport, PlaneDetection,
+    PlaneFigures, RowFigures, TestStatistics, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
 };
 pub use pairs::{check_pair, run_pair, PairOutcome};
-pub use paper::{
-    paper_figures, six_plane_scenario, ExclusionRate, PaperFigures, ParityThresholds, Rate,
-    PAPER_GAMMA,
-};
-pub use sigma::{
-    paper_sigma_table, plane_sigma_table, SigmaRow, SigmaTable, GROSS_ERROR_SIGMAS, PAPER_TABLE_1,
-};
 
 use crate::odometry::OdometryConfig;
 use crate::sim::ScenarioError;
