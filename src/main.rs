@@ -381,7 +381,9 @@ fn integrity_check(
     missed_detection_probability: Option<f64>,
     report_path: Option<PathBuf>,
 ) -> Result<(), String> {
-    use ladar_odometer::study::{integrity_check_with_progress, pairs_to_run, IntegrityCheckArgs};
+    use ladar_odometer::integrity_check::{
+        integrity_check_with_progress, pairs_to_run, IntegrityCheckArgs,
+    };
     let mut args = IntegrityCheckArgs {
         scenario,
         runs,

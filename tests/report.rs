@@ -189,7 +189,7 @@ fn estimate_mcap_carries_foxglove_schemas_with_pose_scans_and_planes() {
 /// and the detection curves, each a parsed SVG holding its series.
 #[test]
 fn the_integrity_check_report_draws_both_histograms_and_the_detection_curves() {
-    use ladar_odometer::study::{integrity_check, IntegrityCheckArgs};
+    use ladar_odometer::integrity_check::{integrity_check, IntegrityCheckArgs};
     let report = integrity_check(&IntegrityCheckArgs {
         runs: 40,
         ..IntegrityCheckArgs::default()

@@ -11,10 +11,10 @@
 //!   motion, so the solved rotation and displacement are the errors.
 
 use ladar_odometer::integrity::{chi_square_upper_quantile, IntegrityConfig, IntegrityMonitor};
-use ladar_odometer::sim::{Motion, Scenario};
-use ladar_odometer::study::{
+use ladar_odometer::integrity_check::{
     check_pair, paper_config, LabelledEpoch, PairOutcome, Rig, StudyError,
 };
+use ladar_odometer::sim::{Motion, Scenario};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;

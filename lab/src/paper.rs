@@ -4,12 +4,12 @@
 //! plane moved by twice its MDB in a six-plane variant of the scene.
 
 use ladar_odometer::integrity::{IntegrityConfig, IntegrityMonitor, Thresholds};
-use ladar_odometer::least_squares::LinearSystem;
-use ladar_odometer::sim::{PaperBias, Patch, Scenario};
-use ladar_odometer::study::{
+use ladar_odometer::integrity_check::{
     paper_config, plane_figures, run_pair, studied_planes, Fault, PairOutcome, PlaneFigures, Rig,
     StudyError,
 };
+use ladar_odometer::least_squares::LinearSystem;
+use ladar_odometer::sim::{PaperBias, Patch, Scenario};
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;

@@ -6,10 +6,10 @@
 //! covariance (`PlaneUncertainty`: total `sigma_normal` and per axis of the normal's 2-D error
 //! ellipse), and `sigma_rho`.
 
+use ladar_odometer::integrity_check::{paper_config, Rig, StudyError};
 use ladar_odometer::odometry::planes::Plane;
 use ladar_odometer::odometry::{Odometer, OdometryConfig};
 use ladar_odometer::sim::{PaperBias, Scenario};
-use ladar_odometer::study::{paper_config, Rig, StudyError};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 use std::fmt;

@@ -5,7 +5,7 @@
 use ladar_lab::door::door_figures;
 use ladar_lab::paper::paper_figures;
 use ladar_lab::sigma::paper_sigma_table;
-use ladar_odometer::study::{integrity_check, IntegrityCheckArgs, StudyError};
+use ladar_odometer::integrity_check::{integrity_check, IntegrityCheckArgs, StudyError};
 
 fn runs_from_env() -> usize {
     std::env::var("RUNS")
@@ -69,7 +69,7 @@ fn integrity_check_on_paper_sim_is_honest_and_detects() {
     }
     // At 1e-3 three or more alarms in 60 pairs have probability 3.4e-5.
     assert!(report.false_alarms.alarms <= 2, "{:?}", report.false_alarms);
-    let rate = |rows: &[ladar_odometer::study::DetectionRow], bias: f64| {
+    let rate = |rows: &[ladar_odometer::integrity_check::DetectionRow], bias: f64| {
         rows.iter().find(|r| r.bias == bias).unwrap().rate
     };
     // 4 deg is twice the MDB of the two far planes and two thirds of the near ones'.

@@ -4,9 +4,9 @@
 //! no integrity: this checks that the core's covariances are honest on realistic scenes.
 
 use ladar_odometer::integrity::{IntegrityConfig, IntegrityMonitor};
+use ladar_odometer::integrity_check::Rig;
 use ladar_odometer::odometry::{OdometryConfig, RelativePose};
 use ladar_odometer::sim::Scenario;
-use ladar_odometer::study::Rig;
 use nalgebra::{Matrix6, UnitQuaternion, Vector6};
 
 /// chi-square with 6 degrees of freedom: 99.9 % point.
@@ -132,7 +132,12 @@ fn assert_honest(summary: &Summary, max_under_determined_share: f64) {
 #[test]
 fn paper_sim_pairs_solve_with_honest_covariances() {
     let scenario = Scenario::paper_sim(ladar_odometer::sim::PaperBias::None);
-    let mut rig = Rig::new(&scenario, 21, ladar_odometer::study::paper_config()).unwrap();
+    let mut rig = Rig::new(
+        &scenario,
+        21,
+        ladar_odometer::integrity_check::paper_config(),
+    )
+    .unwrap();
     let times = vec![rig.epoch_times; 300];
     let summary = score("paper-sim", &mut rig, &times);
     assert_eq!(summary.solved, summary.pairs, "{summary:?}");

@@ -4,7 +4,7 @@
 
 use super::chart::{Axes, ChartError, Mark, Series, BLUE, GREY, ORANGE, RED};
 use super::html::Page;
-use crate::study::{DetectionRow, IntegrityCheckReport};
+use crate::integrity_check::{DetectionRow, IntegrityCheckReport};
 
 /// Histogram bins of the statistic over its threshold, from 0 to `HISTOGRAM_TOP`; larger
 /// values fall in the last bin, so that a fault's long tail still counts.
