@@ -1,7 +1,7 @@
 //! Accuracy and consistency of the whole fusion on the hallway scenarios (docs/accuracy.md).
 //!
 //! The short seeded run is a real test; the full figures are `#[ignore]`d, release-mode runs:
-//! `cargo test --release --test hallway -- --ignored --nocapture --test-threads 1`.
+//! `cargo test --release -p ladar-lab --test hallway -- --ignored --nocapture --test-threads 1`.
 //!
 //! The built-in hallway rig pitches the UST-20LX 30 deg down and rolls it 40 deg, so its lines
 //! cross the level UTM-30LX's on the walls, the floor and the ceiling: every plane is built

@@ -1,6 +1,6 @@
 //! Seeded Monte Carlo studies of the plane sigmas and the integrity tests with small N (debug,
 //! seconds each). The figures of docs/figures.md come from the `#[ignore]`d `print_*` runs:
-//! `RUNS=10000 cargo test -p ladar-odometer --release --test integrity_studies -- --ignored --nocapture --test-threads 1`
+//! `RUNS=10000 cargo test -p ladar-lab --release --test integrity_studies -- --ignored --nocapture --test-threads 1`
 
 use ladar_lab::door::door_figures;
 use ladar_lab::paper::paper_figures;

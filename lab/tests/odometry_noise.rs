@@ -8,7 +8,7 @@
 //! each pose reports grows, and stays honest); at 10 Hz, near either end of its swing, where it
 //! turns a few milliradians per epoch, it biases the poses while it is matched.
 //!
-//! `cargo test --release --test odometry_noise -- --ignored --nocapture`
+//! `cargo test --release -p ladar-lab --test odometry_noise -- --ignored --nocapture`
 
 use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
 use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
