@@ -4,6 +4,7 @@
 //! Dependency direction: `sensors`, `estimation`, `odometry`, `integrity` and `filter` are pure
 //! and synchronous; `fusion` wires them without I/O; only `daemon` touches tokio, ports and files.
 
+pub mod config;
 pub mod daemon;
 pub mod estimate;
 pub mod estimation;
