@@ -540,8 +540,10 @@ fn validate_fusion(config: &Config, p: &mut Problems<'_>) {
             "the IMU mount is set in [imu] rpy_deg: remove this key",
         );
     }
-    if let Err(error) = config.fusion_settings().validate() {
-        p.add_line(error.to_string());
+    if let Err(errors) = config.fusion_settings().validate() {
+        for error in errors.errors() {
+            p.add_line(error.to_string());
+        }
     }
 }
 

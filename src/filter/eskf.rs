@@ -6,7 +6,7 @@ use thiserror::Error;
 
 use super::alignment::{looks_stationary, zero_motion_rows, StationaryMeans};
 use super::chi_square_quantile;
-use super::config::{ConfigError, FilterConfig, RelativePoseUpdate};
+use super::config::{FilterConfig, RelativePoseUpdate};
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
@@ -18,6 +18,7 @@ use super::state::{
 };
 use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
+use crate::config::ConfigErrors;
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
@@ -246,7 +247,7 @@ impl Resume {
 
 impl Eskf {
     /// A filter that aligns itself from the stationary start.
-    pub fn new(config: FilterConfig) -> Result<Self, ConfigError> {
+    pub fn new(config: FilterConfig) -> Result<Self, ConfigErrors> {
         config.validate()?;
         let state = NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros());
         let covariance = initial_covariance(&config, &state.q, StartSigmas::still(&config));
@@ -289,7 +290,7 @@ impl Eskf {
         config: FilterConfig,
         t: f64,
         state: NominalState,
-    ) -> Result<Self, ConfigError> {
+    ) -> Result<Self, ConfigErrors> {
         let mut filter = Self::new(config)?;
         filter.covariance =
             initial_covariance(&filter.config, &state.q, StartSigmas::still(&filter.config));
