@@ -5,6 +5,7 @@
 //! pure and synchronous; `fusion` wires them without I/O; only `daemon` touches tokio, ports and
 //! files.
 
+pub mod config;
 pub mod daemon;
 pub mod estimate;
 pub mod filter;

@@ -18,15 +18,18 @@ fn load(path: &Path, key_file: &Path) -> Config {
     Config::parse(&text, path).unwrap_or_else(|e| panic!("{e}"))
 }
 
-fn key_file() -> PathBuf {
-    let path = std::env::temp_dir().join(format!("ladar-config-key-{}", std::process::id()));
+/// One file per test: tests run in parallel, and one rewriting a shared file while another
+/// reads it shows the reader an empty key.
+fn key_file(test: &str) -> PathBuf {
+    let name = format!("ladar-config-key-{}-{test}", std::process::id());
+    let path = std::env::temp_dir().join(name);
     std::fs::write(&path, "ab".repeat(32)).unwrap();
     path
 }
 
 #[test]
 fn default_toml_sets_the_code_defaults() {
-    let config = load(&repository("config/default.toml"), &key_file());
+    let config = load(&repository("config/default.toml"), &key_file("default"));
     // The fusion tables, key by key (imu_mount_rpy_deg comes from [imu], zero here).
     let code = FusionSettings::default();
     let file = config.fusion_settings();
@@ -69,7 +72,7 @@ fn default_toml_sets_the_code_defaults() {
 
 #[test]
 fn every_example_loads_and_the_issue_rigs_are_there() {
-    let key_file = key_file();
+    let key_file = key_file("examples");
     let mut names = Vec::new();
     for entry in std::fs::read_dir(repository("config/examples")).unwrap() {
         let path = entry.unwrap().path();
@@ -134,7 +137,7 @@ fn every_sensor_device_in_the_configs_is_named_by_the_udev_rules() {
         .map(|entry| entry.unwrap().path())
         .collect();
     files.push(repository("config/default.toml"));
-    let key = key_file();
+    let key = key_file("udev");
     let mut checked = 0;
     for file in &files {
         let config = load(file, &key);

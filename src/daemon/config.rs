@@ -1,37 +1,36 @@
 //! The TOML configuration file: the daemon's sections (sensors, MAVLink, recording, outputs),
-//! read with unknown keys refused and every value checked at start-up, so that a typo is one
-//! clear line naming the key and the file instead of a surprise in flight.
+//! read with unknown keys refused and every value checked at start-up, so that each mistake is
+//! one clear line naming the file and the key instead of a surprise in flight, and every
+//! mistake of every table is listed at once.
 //!
 //! Example files: config/examples/.
 
 use super::link::{parse_key_hex, read_key_file, LinkAddress, Signing};
 use super::mavlink_out::{Identity, Profile, DEFAULT_COMPONENT_ID};
+use crate::config::{ConfigError, Table};
+// `run` and `serve` take the errors of `Config::parse` from here.
+pub use crate::config::ConfigErrors;
 use crate::sensors::Mount;
+use serde::de::DeserializeOwned;
 use serde::Deserialize;
 use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+use toml::de::{DeTable, DeValue, ValueDeserializer};
+use toml::Spanned;
 
-/// The whole configuration file.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// The whole configuration file: the `[[scanner]]` tables, `[imu]` (required) and the tables
+/// that default when left out.
+#[derive(Debug, Clone)]
 pub struct Config {
-    #[serde(rename = "scanner", default)]
     pub scanners: Vec<ScannerConfig>,
     pub imu: ImuConfig,
-    #[serde(default)]
     pub mavlink: Option<MavlinkConfig>,
-    #[serde(default)]
     pub recording: RecordingConfig,
-    #[serde(default)]
     pub output: OutputConfig,
-    #[serde(default)]
     pub fusion: crate::fusion::FusionConfig,
-    #[serde(default)]
     pub odometry: crate::odometry::OdometryConfig,
-    #[serde(default)]
     pub integrity: crate::integrity::IntegrityConfig,
-    #[serde(default)]
     pub filter: crate::filter::FilterConfig,
 }
 
@@ -353,43 +352,16 @@ pub struct OutputConfig {
     pub dir: Option<PathBuf>,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum ConfigError {
-    #[error(
-        "cannot read config {path}: {source} (pass --config FILE; examples in config/examples/)"
-    )]
-    Read {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("config {path}{location}: {message}")]
-    Syntax {
-        path: PathBuf,
-        location: String,
-        message: String,
-    },
-    #[error("config {path}: {key}: {problem}")]
-    Invalid {
-        path: PathBuf,
-        key: String,
-        problem: String,
-    },
-    #[error("config {path}: {problem}")]
-    Section { path: PathBuf, problem: String },
-}
+/// The tables of the file, in the order `Config` reads them.
+const TABLES: &str = "[[scanner]], [imu], [mavlink], [recording], [output], [fusion], [odometry], \
+                      [integrity], [filter]";
 
-/// Every problem found in one file, one line each.
-#[derive(Debug)]
-pub struct ConfigErrors(pub Vec<ConfigError>);
-
-impl fmt::Display for ConfigErrors {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let lines: Vec<String> = self.0.iter().map(ToString::to_string).collect();
-        f.write_str(&lines.join("\n"))
-    }
-}
-
-impl std::error::Error for ConfigErrors {}
+/// Keys that are not keys of their table because the file sets the same thing elsewhere, with
+/// where: one place per setting, so the two cannot disagree.
+const SET_ELSEWHERE: [(&str, &str); 1] = [(
+    "filter.imu_mount_rpy_deg",
+    "the IMU mount is set in [imu] rpy_deg: remove this key and set it there",
+)];
 
 impl Config {
     pub fn load(path: &Path) -> Result<Self, ConfigErrors> {
@@ -399,71 +371,88 @@ impl Config {
     /// The configuration and the file's text, which the recording keeps as metadata.
     pub fn load_with_text(path: &Path) -> Result<(Self, String), ConfigErrors> {
         let text = std::fs::read_to_string(path).map_err(|source| {
-            ConfigErrors(vec![ConfigError::Read {
-                path: path.to_path_buf(),
-                source,
-            }])
+            let mut errors = ConfigErrors::in_file(path);
+            errors.push(ConfigError::new(
+                "",
+                format!(
+                    "cannot read it: {source} (pass --config FILE; examples in config/examples/)"
+                ),
+            ));
+            errors
         })?;
         Self::parse(&text, path).map(|config| (config, text))
     }
 
-    /// `path` names the file in errors.
+    /// Every problem of every table, one line each; `path` names the file in them. Each table
+    /// is read on its own, so that a mistake in one hides nothing of the others.
     pub fn parse(text: &str, path: &Path) -> Result<Self, ConfigErrors> {
-        let config: Self =
-            toml::from_str(text).map_err(|e| ConfigErrors(vec![syntax_error(text, path, &e)]))?;
-        let mut problems = Problems {
-            path,
-            errors: Vec::new(),
+        let mut errors = ConfigErrors::in_file(path);
+        let tables = match DeTable::parse(text) {
+            Ok(tables) => tables.into_inner(),
+            Err(error) => {
+                errors.push(shape_error(text, "", None, &error));
+                return Err(errors);
+            }
         };
-        config.validate(&mut problems);
-        if problems.errors.is_empty() {
-            Ok(config)
-        } else {
-            Err(ConfigErrors(problems.errors))
-        }
+        let mut file = Tables {
+            text,
+            tables,
+            errors: &mut errors,
+        };
+        let scanners = file.scanners();
+        let imu = file.imu();
+        let mavlink = file.table("mavlink", |mavlink: &Option<MavlinkConfig>, errors| {
+            if let Some(mavlink) = mavlink {
+                check_mavlink(mavlink, errors);
+            }
+        });
+        let recording = file.table("recording", check_recording);
+        let output = file.table("output", |_: &OutputConfig, _| {});
+        let fusion = file.table("fusion", crate::fusion::FusionConfig::check);
+        let odometry = file.table("odometry", crate::odometry::OdometryConfig::check);
+        let integrity = file.table("integrity", crate::integrity::IntegrityConfig::check);
+        let filter = file.table("filter", crate::filter::FilterConfig::check);
+        file.refuse_the_rest();
+        let (
+            Some(scanners),
+            Some(imu),
+            Some(mavlink),
+            Some(recording),
+            Some(output),
+            Some(fusion),
+            Some(odometry),
+            Some(integrity),
+            Some(filter),
+        ) = (
+            scanners, imu, mavlink, recording, output, fusion, odometry, integrity, filter,
+        )
+        else {
+            return Err(errors);
+        };
+        let config = Self {
+            scanners,
+            imu,
+            mavlink,
+            recording,
+            output,
+            fusion,
+            odometry,
+            integrity,
+            filter,
+        };
+        config.check_across(&mut errors);
+        errors.into_result().map(|()| config)
     }
 
-    fn validate(&self, p: &mut Problems<'_>) {
-        if self.scanners.len() < 2 {
-            p.add(
-                "scanner",
-                "the odometer needs two [[scanner]] sections (two scan planes at different pitch)",
-            );
-        }
-        for (i, scanner) in self.scanners.iter().enumerate() {
-            validate_scanner(&format!("scanner[{i}]"), scanner, p);
-            if self.scanners[..i].iter().any(|s| s.name == scanner.name) {
-                p.add(
-                    &format!("scanner[{i}].name"),
-                    "another scanner has this name",
-                );
-            }
-        }
-        if let [a, b, ..] = self.scanners.as_slice() {
-            let normal = |s: &ScannerConfig| s.mount().rotation * nalgebra::Vector3::z();
-            let angle = normal(a).angle(&normal(b)).to_degrees();
-            if angle.is_finite() && !(5.0..=175.0).contains(&angle) {
-                p.add(
-                    "scanner[1].rpy_deg",
-                    &format!("the two scan planes are {angle:.1} deg apart: tilt one by 5 deg or more so that planes can be found"),
-                );
-            }
-        }
-        validate_imu(&self.imu, p);
-        if self.scanners.iter().any(|s| s.name == self.imu.name) {
-            p.add("imu.name", "a scanner has the same name");
-        }
-        if let Some(mavlink) = &self.mavlink {
-            validate_mavlink(mavlink, p);
-        }
-        let flush = self.recording.flush_interval_s;
-        if !(flush > 0.0 && flush <= 60.0) {
-            p.add("recording.flush_interval_s", "must be in (0, 60] seconds");
-        }
-        if self.recording.path.is_empty() {
-            p.add("recording.path", "empty: give a directory or \"off\"");
-        }
-        validate_fusion(self, p);
+    /// The checks that need more than one table.
+    fn check_across(&self, errors: &mut ConfigErrors) {
+        errors.table("imu").check(
+            !self.scanners.iter().any(|s| s.name == self.imu.name),
+            "name",
+            &self.imu.name,
+            "a scanner has the same name",
+        );
+        self.fusion_settings().check_history(errors);
     }
 
     /// The `[fusion]`, `[odometry]`, `[integrity]` and `[filter]` tables, with the IMU mount
@@ -480,50 +469,161 @@ impl Config {
     }
 }
 
-struct Problems<'a> {
-    path: &'a Path,
-    errors: Vec<ConfigError>,
+/// The file's top-level tables, taken out one by one; what is left at the end is unknown.
+struct Tables<'i, 'e> {
+    text: &'i str,
+    tables: DeTable<'i>,
+    errors: &'e mut ConfigErrors,
 }
 
-impl Problems<'_> {
-    fn add(&mut self, key: &str, problem: &str) {
-        self.errors.push(ConfigError::Invalid {
-            path: self.path.to_path_buf(),
-            key: key.to_string(),
-            problem: problem.to_string(),
-        });
+impl<'i> Tables<'i, '_> {
+    /// Table `name` (its default when the file leaves it out), checked with `check`; `None`
+    /// when it does not read.
+    fn table<T: DeserializeOwned + Default>(
+        &mut self,
+        name: &str,
+        check: impl FnOnce(&T, &mut ConfigErrors),
+    ) -> Option<T> {
+        let table = match self.tables.remove(name) {
+            Some(value) => self.read(name, &value)?,
+            None => T::default(),
+        };
+        check(&table, self.errors);
+        Some(table)
     }
 
-    /// A problem whose message already names its key (the core sections' own checks).
-    fn add_line(&mut self, line: String) {
-        self.errors.push(ConfigError::Section {
-            path: self.path.to_path_buf(),
-            problem: line,
-        });
+    fn imu(&mut self) -> Option<ImuConfig> {
+        let Some(value) = self.tables.remove("imu") else {
+            self.errors.push(ConfigError::new(
+                "imu",
+                "missing: add an [imu] table with the MTi's connection (examples in config/examples/)",
+            ));
+            return None;
+        };
+        let imu = self.read("imu", &value)?;
+        check_imu(&imu, self.errors);
+        Some(imu)
     }
 
-    fn check(&mut self, ok: bool, key: &str, problem: &str) {
-        if !ok {
-            self.add(key, problem);
+    /// Each `[[scanner]]` read on its own, so that every bad one is named by its index.
+    fn scanners(&mut self) -> Option<Vec<ScannerConfig>> {
+        let scanners = match self.tables.remove("scanner") {
+            None => Vec::new(),
+            Some(value) => match value.get_ref() {
+                DeValue::Array(items) => {
+                    let read: Vec<Option<ScannerConfig>> = items
+                        .iter()
+                        .enumerate()
+                        .map(|(i, item)| self.read(&format!("scanner[{i}]"), item))
+                        .collect();
+                    read.into_iter().collect::<Option<_>>()?
+                }
+                _ => self.read("scanner", &value)?,
+            },
+        };
+        check_scanners(&scanners, self.errors);
+        Some(scanners)
+    }
+
+    /// `value` as a `T`, or `None` after recording why not.
+    fn read<T: DeserializeOwned>(&mut self, name: &str, value: &Spanned<DeValue<'i>>) -> Option<T> {
+        T::deserialize(ValueDeserializer::from(value.clone()))
+            .map_err(|error| {
+                self.errors
+                    .push(shape_error(self.text, name, Some(value), &error));
+            })
+            .ok()
+    }
+
+    fn refuse_the_rest(self) {
+        for (name, value) in self.tables.iter() {
+            self.errors.push(ConfigError {
+                key: name.get_ref().to_string(),
+                value: shown_value(self.text, value),
+                position: Some(position(self.text, name.span().start)),
+                problem: format!("unknown table; the tables are {TABLES}"),
+            });
         }
     }
 }
 
-fn syntax_error(text: &str, path: &Path, error: &toml::de::Error) -> ConfigError {
-    let location = error
-        .span()
-        .map(|span| {
-            let before = text.get(..span.start).unwrap_or(text);
-            let line = before.matches('\n').count() + 1;
-            let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-            format!(" line {line} column {column}")
-        })
-        .unwrap_or_default();
-    ConfigError::Syntax {
-        path: path.to_path_buf(),
-        location,
-        message: error.message().trim().replace('\n', " "),
+/// A table that does not read as its type: an unknown key, a missing key or a value of the
+/// wrong type, named with its line.
+fn shape_error(
+    text: &str,
+    table: &str,
+    value: Option<&Spanned<DeValue<'_>>>,
+    error: &toml::de::Error,
+) -> ConfigError {
+    let at = error.span().map(|span| span.start);
+    let found = at.zip(value).and_then(|(at, value)| match value.get_ref() {
+        DeValue::Table(entries) => key_at(entries, at),
+        _ => None,
+    });
+    let (key, shown) = match found {
+        Some((keys, value)) => {
+            let key = format!("{table}.{}", keys.join("."));
+            // A misspelt signing key would otherwise print the secret.
+            let shown = (!key.starts_with("mavlink.signing"))
+                .then(|| shown_value(text, value))
+                .flatten();
+            (key, shown)
+        }
+        None => (table.to_string(), None),
+    };
+    let message = error.message().trim().replace('\n', " ");
+    let problem = match message
+        .strip_prefix("unknown field `")
+        .and_then(|rest| rest.split_once("`, "))
+    {
+        Some((_, expected)) => match SET_ELSEWHERE.iter().find(|(moved, _)| *moved == key) {
+            Some((_, hint)) => format!("not a key of [{table}]: {hint}"),
+            None => format!("unknown key, {expected}"),
+        },
+        None => message,
+    };
+    ConfigError {
+        key,
+        value: shown,
+        position: at.map(|at| position(text, at)),
+        problem,
     }
+}
+
+/// The keys leading to the key or value at byte `at`, and that value.
+fn key_at<'a, 'i>(
+    table: &'a DeTable<'i>,
+    at: usize,
+) -> Option<(Vec<&'a str>, &'a Spanned<DeValue<'i>>)> {
+    table.iter().find_map(|(key, value)| {
+        let inner = match value.get_ref() {
+            DeValue::Table(entries) => key_at(entries, at),
+            _ => None,
+        };
+        match inner {
+            Some((mut keys, found)) => {
+                keys.insert(0, key.get_ref());
+                Some((keys, found))
+            }
+            None => (key.span().contains(&at) || value.span().contains(&at))
+                .then(|| (vec![key.get_ref().as_ref()], value)),
+        }
+    })
+}
+
+/// The value as the file writes it, when it fits on the line.
+fn shown_value(text: &str, value: &Spanned<DeValue<'_>>) -> Option<String> {
+    let written = text.get(value.span())?.trim();
+    (!matches!(value.get_ref(), DeValue::Table(_)) && !written.contains('\n'))
+        .then(|| written.to_string())
+}
+
+/// Line and column, from 1, of byte `at`.
+fn position(text: &str, at: usize) -> (usize, usize) {
+    let before = text.get(..at).unwrap_or(text);
+    let line = before.matches('\n').count() + 1;
+    let column = before.len() - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+    (line, column)
 }
 
 fn valid_name(name: &str) -> bool {
@@ -533,115 +633,162 @@ fn valid_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
-fn validate_fusion(config: &Config, p: &mut Problems<'_>) {
-    if config.filter.imu_mount_rpy_deg != [0.0; 3] {
-        p.add(
-            "filter.imu_mount_rpy_deg",
-            "the IMU mount is set in [imu] rpy_deg: remove this key",
-        );
-    }
-    if let Err(error) = config.fusion_settings().validate() {
-        p.add_line(error.to_string());
-    }
-}
-
-fn validate_mount(key: &str, rpy_deg: &[f64; 3], translation_m: &[f64; 3], p: &mut Problems<'_>) {
-    p.check(
+fn check_mount(table: &mut Table<'_>, rpy_deg: &[f64; 3], translation_m: &[f64; 3]) {
+    table.check(
         rpy_deg.iter().all(|a| a.is_finite() && a.abs() <= 180.0),
-        &format!("{key}.rpy_deg"),
+        "rpy_deg",
+        rpy_deg,
         "angles must be finite degrees within [-180, 180]",
     );
-    p.check(
+    table.check(
         translation_m
             .iter()
             .all(|t| t.is_finite() && t.abs() <= 10.0),
-        &format!("{key}.translation_m"),
+        "translation_m",
+        translation_m,
         "offsets must be finite metres within 10 m of the body origin",
     );
 }
 
-fn validate_scanner(key: &str, s: &ScannerConfig, p: &mut Problems<'_>) {
-    p.check(
-        valid_name(&s.name),
-        &format!("{key}.name"),
-        "use letters, digits, `-` and `_` (it names the recording topics)",
-    );
-    if let Err(problem) = s.connection.parse::<SensorConnection>() {
-        p.add(
-            &format!("{key}.connection"),
-            &format!("`{}`: {problem}", s.connection),
+fn check_scanners(scanners: &[ScannerConfig], errors: &mut ConfigErrors) {
+    if scanners.len() < 2 {
+        errors.push(ConfigError::new(
+            "scanner",
+            format!(
+                "{} [[scanner]] tables: the odometer needs two (two scan planes at different pitch)",
+                scanners.len()
+            ),
+        ));
+    }
+    for (i, scanner) in scanners.iter().enumerate() {
+        let name = format!("scanner[{i}]");
+        let mut table = errors.table(&name);
+        check_scanner(&mut table, scanner);
+        table.check(
+            !scanners[..i].iter().any(|s| s.name == scanner.name),
+            "name",
+            &scanner.name,
+            "another scanner has this name",
         );
     }
-    validate_mount(key, &s.rpy_deg, &s.translation_m, p);
-    p.check(
-        s.range_sigma_m > 0.0 && s.range_sigma_m <= 0.5,
-        &format!("{key}.range_sigma_m"),
-        "must be in (0, 0.5] metres (Hokuyo datasheets give 0.01 to 0.03)",
-    );
-    p.check(
-        (1..=99).contains(&s.cluster),
-        &format!("{key}.cluster"),
-        "SCIP cluster counts are 1 to 99",
-    );
-    if let (Some(first), Some(last)) = (s.first_step, s.last_step) {
-        p.check(
-            first < last,
-            &format!("{key}.first_step"),
-            "must be smaller than last_step",
+    if let [a, b, ..] = scanners {
+        let normal = |s: &ScannerConfig| s.mount().rotation * nalgebra::Vector3::z();
+        let angle = normal(a).angle(&normal(b)).to_degrees();
+        errors.table("scanner[1]").check(
+            !angle.is_finite() || (5.0..=175.0).contains(&angle),
+            "rpy_deg",
+            b.rpy_deg,
+            format!("the two scan planes are {angle:.1} deg apart: tilt one by 5 deg or more so that planes can be found"),
         );
     }
 }
 
-fn validate_imu(imu: &ImuConfig, p: &mut Problems<'_>) {
-    p.check(
+fn check_scanner(table: &mut Table<'_>, s: &ScannerConfig) {
+    table.check(
+        valid_name(&s.name),
+        "name",
+        &s.name,
+        "use letters, digits, `-` and `_` (it names the recording topics)",
+    );
+    if let Err(problem) = s.connection.parse::<SensorConnection>() {
+        table.refuse("connection", &s.connection, problem);
+    }
+    check_mount(table, &s.rpy_deg, &s.translation_m);
+    table.check(
+        s.range_sigma_m > 0.0 && s.range_sigma_m <= 0.5,
+        "range_sigma_m",
+        s.range_sigma_m,
+        "must be in (0, 0.5] metres (Hokuyo datasheets give 0.01 to 0.03)",
+    );
+    table.check(
+        (1..=99).contains(&s.cluster),
+        "cluster",
+        s.cluster,
+        "SCIP cluster counts are 1 to 99",
+    );
+    if let (Some(first), Some(last)) = (s.first_step, s.last_step) {
+        table.check(
+            first < last,
+            "first_step",
+            first,
+            format!("must be smaller than last_step = {last}"),
+        );
+    }
+}
+
+fn check_imu(imu: &ImuConfig, errors: &mut ConfigErrors) {
+    let mut table = errors.table("imu");
+    table.check(
         valid_name(&imu.name),
-        "imu.name",
+        "name",
+        &imu.name,
         "use letters, digits, `-` and `_` (it names the recording topics)",
     );
     match imu.connection.parse::<SensorConnection>() {
-        Err(problem) => p.add(
-            "imu.connection",
-            &format!("`{}`: {problem}", imu.connection),
-        ),
-        Ok(SensorConnection::Tcp { .. }) => p.add(
-            "imu.connection",
+        Err(problem) => table.refuse("connection", &imu.connection, problem),
+        Ok(SensorConnection::Tcp { .. }) => table.refuse(
+            "connection",
+            &imu.connection,
             "the MTi is a serial device: use serial:/dev/NAME:BAUD",
         ),
         Ok(_) => {}
     }
-    validate_mount("imu", &imu.rpy_deg, &imu.translation_m, p);
-    p.check(
+    check_mount(&mut table, &imu.rpy_deg, &imu.translation_m);
+    table.check(
         (1..=2000).contains(&imu.rate_hz),
-        "imu.rate_hz",
+        "rate_hz",
+        imu.rate_hz,
         "must be 1 to 2000 Hz (the MTi outputs at divisors of 400, 1000 or 2000 Hz)",
     );
 }
 
-fn validate_mavlink(m: &MavlinkConfig, p: &mut Problems<'_>) {
+fn check_mavlink(m: &MavlinkConfig, errors: &mut ConfigErrors) {
+    let mut table = errors.table("mavlink");
     if let Err(e) = m.connection.parse::<LinkAddress>() {
-        p.add("mavlink.connection", &e.to_string());
+        table.refuse("connection", &m.connection, e.to_string());
     }
-    p.check(
+    table.check(
         m.system_id > 0,
-        "mavlink.system_id",
+        "system_id",
+        m.system_id,
         "must be 1 to 255 (use the autopilot's)",
     );
-    p.check(
+    table.check(
         m.component_id > 0,
-        "mavlink.component_id",
+        "component_id",
+        m.component_id,
         "must be 1 to 255 (197 is the odometry component)",
     );
     let (low, high) = m.profile.rate_range_hz();
     if let Some(rate) = m.rate_hz {
-        p.check(
+        table.check(
             rate >= low && rate <= high,
-            "mavlink.rate_hz",
-            &format!("profile {} needs {low} to {high} Hz", m.profile),
+            "rate_hz",
+            rate,
+            format!("profile {} needs {low} to {high} Hz", m.profile),
         );
     }
     if let Err(problem) = m.signing() {
-        p.add("mavlink.signing", &problem);
+        // No value: it would be the key.
+        errors.push(ConfigError::new("mavlink.signing", problem));
     }
+}
+
+fn check_recording(recording: &RecordingConfig, errors: &mut ConfigErrors) {
+    let mut table = errors.table("recording");
+    let flush = recording.flush_interval_s;
+    table.check(
+        flush > 0.0 && flush <= 60.0,
+        "flush_interval_s",
+        flush,
+        "must be in (0, 60] seconds",
+    );
+    table.check(
+        !recording.path.is_empty(),
+        "path",
+        &recording.path,
+        "empty: give a directory or \"off\"",
+    );
 }
 
 #[cfg(test)]
@@ -689,13 +836,19 @@ path = "/var/lib/ladar-odometer"
         Path::new("/etc/ladar-odometer/config.toml")
     }
 
-    fn errors(text: &str) -> Vec<String> {
+    fn problems(text: &str) -> Vec<String> {
         Config::parse(text, path())
             .unwrap_err()
-            .0
-            .iter()
-            .map(ToString::to_string)
+            .to_string()
+            .lines()
+            .map(String::from)
             .collect()
+    }
+
+    /// Whether a line is about `key`: the file, then the key.
+    fn names(line: &str, key: &str) -> bool {
+        line.strip_prefix("config /etc/ladar-odometer/config.toml: ")
+            .is_some_and(|rest| rest.starts_with(key))
     }
 
     #[test]
@@ -737,7 +890,7 @@ path = "/var/lib/ladar-odometer"
     #[test]
     fn an_unknown_key_names_it_with_its_line() {
         let text = VALID.replace("range_sigma_m = 0.02", "range_sigma = 0.02");
-        let errors = errors(&text);
+        let errors = problems(&text);
         assert_eq!(errors.len(), 1);
         let line = text
             .lines()
@@ -749,9 +902,79 @@ path = "/var/lib/ladar-odometer"
             "{}",
             errors[0]
         );
-        assert!(errors[0].contains("range_sigma"), "{}", errors[0]);
+        assert!(
+            names(&errors[0], "scanner[1].range_sigma = 0.02 "),
+            "{}",
+            errors[0]
+        );
         assert!(errors[0].contains(&format!("line {line}")), "{}", errors[0]);
-        assert!(!errors[0].contains('\n'));
+        assert!(errors[0].contains("unknown key"), "{}", errors[0]);
+
+        let text = format!("{VALID}\n[odometry]\nrotation_tolerance = 1e-9\n");
+        let errors = problems(&text);
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(
+            names(&errors[0], "odometry.rotation_tolerance"),
+            "{}",
+            errors[0]
+        );
+    }
+
+    #[test]
+    fn mistakes_in_several_tables_are_all_reported_each_on_its_own_line() {
+        let text = format!(
+            "{}\n[odometry]\nmin_line_points = 2\n[filter]\nmax_imu_gap_s = -1.0\n",
+            VALID.replace("cluster = 2", "cluster = 0")
+        );
+        let errors = problems(&text);
+        assert_eq!(errors.len(), 3, "{errors:#?}");
+        assert!(names(&errors[0], "scanner[1].cluster = 0: "), "{errors:#?}");
+        assert!(
+            names(&errors[1], "odometry.min_line_points = 2: "),
+            "{errors:#?}"
+        );
+        assert!(
+            names(&errors[2], "filter.max_imu_gap_s = -1.0: "),
+            "{errors:#?}"
+        );
+
+        // A table that does not read hides nothing of the others.
+        let text = format!(
+            "{VALID}\n[integrity]\nfalse_alarm_probabilty = 0.01\n[filter]\nmax_imu_gap_s = -1.0\n"
+        );
+        let errors = problems(&text);
+        assert_eq!(errors.len(), 2, "{errors:#?}");
+        assert!(
+            names(&errors[0], "integrity.false_alarm_probabilty"),
+            "{errors:#?}"
+        );
+        assert!(names(&errors[1], "filter.max_imu_gap_s"), "{errors:#?}");
+    }
+
+    #[test]
+    fn the_imu_mount_in_the_filter_table_points_to_the_imu_table() {
+        for mount in ["[0.0, 0.0, 0.0]", "[0.0, 0.0, 90.0]"] {
+            let text = format!("{VALID}\n[filter]\nimu_mount_rpy_deg = {mount}\n");
+            let errors = problems(&text);
+            assert_eq!(errors.len(), 1, "{errors:#?}");
+            assert!(
+                names(
+                    &errors[0],
+                    &format!("filter.imu_mount_rpy_deg = {mount} at line")
+                ),
+                "{}",
+                errors[0]
+            );
+            assert!(errors[0].contains("[imu] rpy_deg"), "{}", errors[0]);
+        }
+    }
+
+    #[test]
+    fn an_unknown_table_is_named_with_the_known_ones() {
+        let errors = problems(&format!("{VALID}\n[filtre]\ngate_probability = 0.99\n"));
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(names(&errors[0], "filtre at line"), "{}", errors[0]);
+        assert!(errors[0].contains("[filter]"), "{}", errors[0]);
     }
 
     #[test]
@@ -764,7 +987,7 @@ path = "/var/lib/ladar-odometer"
             .replace("serial:/dev/ttyAMA0:921600", "udp:1.2.3.4:14550")
             .replace("link_id = 1", "link_id = 1\nkey_file = \"/k\"")
             .replace("name = \"tilted\"", "name = \"front\"");
-        let errors = errors(&text);
+        let errors = problems(&text);
         for key in [
             "scanner[0].connection",
             "scanner[0].range_sigma_m",
@@ -775,7 +998,7 @@ path = "/var/lib/ladar-odometer"
             "mavlink.signing",
         ] {
             assert!(
-                errors.iter().any(|e| e.contains(&format!(": {key}: "))),
+                errors.iter().any(|e| names(e, key)),
                 "{key} missing from {errors:#?}"
             );
         }
@@ -788,7 +1011,7 @@ path = "/var/lib/ladar-odometer"
     #[test]
     fn parallel_scan_planes_are_refused() {
         let text = VALID.replace("rpy_deg = [0.0, 20.0, 0.0]", "rpy_deg = [0.0, 2.0, 90.0]");
-        let errors = errors(&text);
+        let errors = problems(&text);
         assert_eq!(errors.len(), 1, "{errors:?}");
         assert!(errors[0].contains("scanner[1].rpy_deg") && errors[0].contains("apart"));
     }
@@ -799,7 +1022,7 @@ path = "/var/lib/ladar-odometer"
             "profile = \"px4\"",
             "profile = \"ardupilot\"\nrate_hz = 30.0",
         );
-        let errors = errors(&text);
+        let errors = problems(&text);
         assert!(
             errors[0].contains("mavlink.rate_hz") && errors[0].contains("10 to 20"),
             "{errors:?}"
@@ -808,7 +1031,7 @@ path = "/var/lib/ladar-odometer"
 
     #[test]
     fn a_bad_enum_value_and_a_missing_section_are_clear() {
-        let bad_enum = errors(&VALID.replace("\"px4\"", "\"apm\""));
+        let bad_enum = problems(&VALID.replace("\"px4\"", "\"apm\""));
         assert!(
             bad_enum[0].contains("apm") && bad_enum[0].contains("line"),
             "{bad_enum:?}"
@@ -816,8 +1039,9 @@ path = "/var/lib/ladar-odometer"
         let start = VALID.find("[imu]").unwrap();
         let end = VALID.find("[mavlink]").unwrap();
         let without_imu = format!("{}{}", &VALID[..start], &VALID[end..]);
-        let errors = errors(&without_imu);
-        assert!(errors[0].contains("imu"), "{errors:?}");
+        let errors = problems(&without_imu);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(names(&errors[0], "imu: missing"), "{errors:?}");
     }
 
     #[test]
@@ -846,9 +1070,8 @@ path = "/var/lib/ladar-odometer"
         #[test]
         fn any_text_gives_a_config_or_lines_naming_the_file(text in "\\PC{0,200}") {
             if let Err(errors) = Config::parse(&text, path()) {
-                for error in &errors.0 {
-                    let line = error.to_string();
-                    proptest::prop_assert!(!line.contains('\n') && line.contains("config.toml"), "{}", line);
+                for line in errors.to_string().lines() {
+                    proptest::prop_assert!(line.starts_with("config /etc/ladar-odometer/config.toml: "), "{}", line);
                 }
             }
         }

@@ -4,8 +4,9 @@
 
 use nalgebra::UnitQuaternion;
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
+use std::cmp::Ordering;
 
+use crate::config::ConfigErrors;
 use crate::sensors::Mount;
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
@@ -105,7 +106,9 @@ pub struct FilterConfig {
     pub epoch_max_delay_s: f64,
     /// IMU mount: rotation of the IMU frame into body FRD, `[roll, pitch, yaw]` in degrees,
     /// composed as in docs/design.md, "Frames". The lever arm is neglected (body origin at the
-    /// IMU).
+    /// IMU). Not a key of `[filter]`: the file sets the mount once, in `[imu] rpy_deg`, and
+    /// `Config::fusion_settings` copies it here.
+    #[serde(skip)]
     pub imu_mount_rpy_deg: [f64; 3],
     /// Length of the pose history kept for deskewing and odometer priors, s.
     pub pose_history_s: f64,
@@ -189,26 +192,15 @@ impl Default for FilterConfig {
     }
 }
 
-/// A configuration value the filter cannot run with.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum ConfigError {
-    #[error("filter.{key} = {value} is invalid: set a finite value greater than zero")]
-    NotPositive { key: &'static str, value: f64 },
-    #[error("filter.{key} = {value} is invalid: set a finite value of zero or more")]
-    Negative { key: &'static str, value: f64 },
-    #[error("filter.gate_probability = {0} is invalid: set a probability in (0, 1], 1 disables the gate")]
-    GateProbability(f64),
-    #[error("filter.stationary_start_s = {stationary} is shorter than filter.coarse_alignment_s = {coarse}: make it at least as long")]
-    StationaryShorterThanAlignment { stationary: f64, coarse: f64 },
-    #[error("filter.imu_mount_rpy_deg = {0:?} is invalid: set three finite angles in degrees")]
-    Mount([f64; 3]),
-    #[error("filter.epoch_max_delay_s = {delay} is longer than filter.pose_history_s = {history}: the delay is bridged from the pose history, so keep it within it")]
-    DelayBeyondHistory { delay: f64, history: f64 },
-}
-
 impl FilterConfig {
-    /// Checks every key; the error names the first bad key and how to fix it.
-    pub fn validate(&self) -> Result<(), ConfigError> {
+    /// Every problem of the table, one line each.
+    pub fn validate(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| self.check(errors))
+    }
+
+    /// Adds every problem of the table to `errors`.
+    pub fn check(&self, errors: &mut ConfigErrors) {
+        let mut filter = errors.table("filter");
         let positive = [
             ("gravity_mps2", self.gravity_mps2),
             ("gyro_noise_density", self.gyro_noise_density),
@@ -254,23 +246,25 @@ impl FilterConfig {
                 "moving_start_sigma_gyro_bias",
                 self.moving_start_sigma_gyro_bias,
             ),
-            (
-                "converged_after_epochs",
-                f64::from(self.converged_after_epochs),
-            ),
             ("max_speed_mps", self.max_speed_mps),
-            ("divergence_window", f64::from(self.divergence_window)),
-            (
-                "divergence_refused_in_row",
-                f64::from(self.divergence_refused_in_row),
-            ),
             ("max_position_step_m", self.max_position_step_m),
             ("max_coast_s", self.max_coast_s),
         ];
         for (key, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(ConfigError::NotPositive { key, value });
-            }
+            filter.check(
+                value.is_finite() && value > 0.0,
+                key,
+                value,
+                "set a finite value greater than zero",
+            );
+        }
+        let counts = [
+            ("converged_after_epochs", self.converged_after_epochs),
+            ("divergence_window", self.divergence_window),
+            ("divergence_refused_in_row", self.divergence_refused_in_row),
+        ];
+        for (key, value) in counts {
+            filter.check(value > 0, key, value, "set 1 or more");
         }
         let non_negative = [
             ("gyro_bias_random_walk", self.gyro_bias_random_walk),
@@ -280,29 +274,46 @@ impl FilterConfig {
             ("stationary_start_s", self.stationary_start_s),
         ];
         for (key, value) in non_negative {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(ConfigError::Negative { key, value });
-            }
+            filter.check(
+                value.is_finite() && value >= 0.0,
+                key,
+                value,
+                "set a finite value of zero or more",
+            );
         }
-        if !(self.gate_probability > 0.0 && self.gate_probability <= 1.0) {
-            return Err(ConfigError::GateProbability(self.gate_probability));
-        }
-        if self.stationary_start_s < self.coarse_alignment_s {
-            return Err(ConfigError::StationaryShorterThanAlignment {
-                stationary: self.stationary_start_s,
-                coarse: self.coarse_alignment_s,
-            });
-        }
-        if !self.imu_mount_rpy_deg.iter().all(|a| a.is_finite()) {
-            return Err(ConfigError::Mount(self.imu_mount_rpy_deg));
-        }
-        if self.epoch_max_delay_s > self.pose_history_s {
-            return Err(ConfigError::DelayBeyondHistory {
-                delay: self.epoch_max_delay_s,
-                history: self.pose_history_s,
-            });
-        }
-        Ok(())
+        filter.check(
+            self.gate_probability > 0.0 && self.gate_probability <= 1.0,
+            "gate_probability",
+            self.gate_probability,
+            "set a probability in (0, 1], 1 disables the gate",
+        );
+        // A NaN on either side compares as neither and passes: its own line names it.
+        filter.check(
+            self.stationary_start_s
+                .partial_cmp(&self.coarse_alignment_s)
+                != Some(Ordering::Less),
+            "stationary_start_s",
+            self.stationary_start_s,
+            format!(
+                "shorter than filter.coarse_alignment_s = {:?}: make it at least as long",
+                self.coarse_alignment_s
+            ),
+        );
+        filter.check(
+            self.imu_mount_rpy_deg.iter().all(|a| a.is_finite()),
+            "imu_mount_rpy_deg",
+            self.imu_mount_rpy_deg,
+            "set three finite angles in degrees (in the configuration file: [imu] rpy_deg)",
+        );
+        filter.check(
+            self.epoch_max_delay_s.partial_cmp(&self.pose_history_s) != Some(Ordering::Greater),
+            "epoch_max_delay_s",
+            self.epoch_max_delay_s,
+            format!(
+                "longer than filter.pose_history_s = {:?}: the delay is bridged from the pose history, so keep it within it",
+                self.pose_history_s
+            ),
+        );
     }
 
     /// Rotation of IMU-frame vectors into the body frame.
@@ -329,36 +340,40 @@ mod tests {
 
     #[test]
     fn keys_parse_and_unknown_keys_are_refused() {
-        let parsed: FilterConfig =
-            toml::from_str("relative_pose_update = \"velocity\"\nimu_mount_rpy_deg = [0, 0, 90]")
-                .unwrap();
+        let parsed: FilterConfig = toml::from_str("relative_pose_update = \"velocity\"").unwrap();
         assert_eq!(parsed.relative_pose_update, RelativePoseUpdate::Velocity);
-        let rotated = parsed.imu_to_body() * nalgebra::Vector3::x();
-        assert!((rotated - nalgebra::Vector3::y()).norm() < 1e-12);
         assert!(toml::from_str::<FilterConfig>("gyro_noise = 1.0").is_err());
+        // The mount is [imu] rpy_deg in the file; only code sets it here.
+        assert!(toml::from_str::<FilterConfig>("imu_mount_rpy_deg = [0, 0, 90]").is_err());
+        let rotated = FilterConfig {
+            imu_mount_rpy_deg: [0.0, 0.0, 90.0],
+            ..FilterConfig::default()
+        }
+        .imu_to_body()
+            * nalgebra::Vector3::x();
+        assert!((rotated - nalgebra::Vector3::y()).norm() < 1e-12);
     }
 
     #[test]
-    fn bad_values_give_one_line_errors_naming_the_key() {
+    fn every_bad_value_is_its_own_line_naming_the_key() {
         let config = FilterConfig {
             max_imu_gap_s: -1.0,
+            gate_probability: 1.5,
+            stationary_start_s: 0.5,
+            divergence_window: 0,
             ..FilterConfig::default()
         };
         let message = config.validate().unwrap_err().to_string();
-        assert!(message.contains("filter.max_imu_gap_s"), "{message}");
-        assert!(!message.contains('\n'));
-        let config = FilterConfig {
-            gate_probability: 1.5,
-            ..FilterConfig::default()
-        };
-        assert!(matches!(
-            config.validate(),
-            Err(ConfigError::GateProbability(_))
-        ));
-        let config = FilterConfig {
-            stationary_start_s: 0.5,
-            ..FilterConfig::default()
-        };
-        assert!(config.validate().is_err());
+        let lines: Vec<&str> = message.lines().collect();
+        assert_eq!(
+            lines,
+            [
+                "filter.max_imu_gap_s = -1.0: set a finite value greater than zero",
+                "filter.divergence_window = 0: set 1 or more",
+                "filter.gate_probability = 1.5: set a probability in (0, 1], 1 disables the gate",
+                "filter.stationary_start_s = 0.5: shorter than filter.coarse_alignment_s = 1.0: \
+                 make it at least as long",
+            ]
+        );
     }
 }

@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, StationaryMeans};
-use super::config::{ConfigError, FilterConfig};
+use super::config::FilterConfig;
 use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
@@ -20,6 +20,7 @@ use super::state::{
 };
 use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
+use crate::config::ConfigErrors;
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, TruthSample};
 
@@ -241,7 +242,7 @@ impl Resume {
 
 impl Eskf {
     /// A filter that aligns itself from the stationary start.
-    pub fn new(config: FilterConfig) -> Result<Self, ConfigError> {
+    pub fn new(config: FilterConfig) -> Result<Self, ConfigErrors> {
         config.validate()?;
         let state = NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros());
         let covariance = initial_covariance(&config, &state.q, StartSigmas::still(&config));
@@ -284,7 +285,7 @@ impl Eskf {
         config: FilterConfig,
         t: f64,
         state: NominalState,
-    ) -> Result<Self, ConfigError> {
+    ) -> Result<Self, ConfigErrors> {
         let mut filter = Self::new(config)?;
         filter.covariance =
             initial_covariance(&filter.config, &state.q, StartSigmas::still(&filter.config));

@@ -27,7 +27,7 @@ pub mod strapdown;
 pub(crate) mod testkit;
 pub mod update;
 
-pub use config::{ConfigError, FilterConfig, RelativePoseUpdate};
+pub use config::{FilterConfig, RelativePoseUpdate};
 pub use consistency::{chi_square_quantile, mean_nees_interval, nees, nis, Normalised};
 pub use eskf::{
     Degradation, DropReason, Eskf, FilterCounters, FilterPhase, ImuOutcome, PosePrior, ResetReason,

@@ -232,13 +232,7 @@ impl ClockEstimator {
     }
 
     fn signed_step(&self, from: u64, to: u64) -> i64 {
-        let modulus = self.config.modulus;
-        let forward = (to + modulus - from) % modulus;
-        if forward > modulus / 2 {
-            forward as i64 - modulus as i64
-        } else {
-            forward as i64
-        }
+        wrapping_counter::signed_step(self.config.modulus, from, to)
     }
 
     fn restart(&mut self) {

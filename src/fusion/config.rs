@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use crate::config::ConfigErrors;
 use crate::filter::FilterConfig;
 use crate::integrity::IntegrityConfig;
 use crate::odometry::OdometryConfig;
@@ -72,41 +73,31 @@ pub struct FusionSettings {
 /// reference time and the solve uses the pose at the previous epoch.
 const HISTORY_MARGIN_S: f64 = 0.25;
 
-/// A setting or scanner the fusion cannot run with; Display is one line naming the fix.
+/// What keeps a `Fusion` from being built: its settings, or a scanner index.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum FusionError {
-    #[error("fusion.{key} = {value} is invalid: set {expected}")]
-    Invalid {
-        key: &'static str,
-        value: f64,
-        expected: &'static str,
-    },
-    #[error("fusion.epoch_rate_hz = {rate} with fusion.plane_confirmation_s = {confirmation} needs {needed:.2} s of pose history but filter.pose_history_s = {history}: raise filter.pose_history_s, or the epoch rate, or lower the confirmation")]
-    HistoryTooShort {
-        rate: f64,
-        confirmation: f64,
-        history: f64,
-        needed: f64,
-    },
     #[error("{0}")]
-    Odometry(#[from] crate::odometry::ConfigError),
-    #[error("{0}")]
-    Integrity(#[from] crate::integrity::ConfigError),
-    #[error("{0}")]
-    Filter(#[from] crate::filter::ConfigError),
+    Config(#[from] ConfigErrors),
     #[error("scanner index {0} does not exist: the fusion takes scanners 0 and 1")]
     NoSuchScanner(usize),
 }
 
 impl FusionConfig {
-    pub fn validate(&self) -> Result<(), FusionError> {
-        let positive = "a finite number above 0";
-        let checks: [(&'static str, f64, bool, &'static str); 6] = [
+    /// Every problem of the table, one line each.
+    pub fn validate(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| self.check(errors))
+    }
+
+    /// Adds every problem of the table to `errors`.
+    pub fn check(&self, errors: &mut ConfigErrors) {
+        let mut fusion = errors.table("fusion");
+        let positive = "set a finite number above 0";
+        let checks = [
             (
                 "measurement_covariance_scale",
                 self.measurement_covariance_scale,
                 self.measurement_covariance_scale >= 1.0,
-                "a finite number of 1 or more",
+                "set a finite number of 1 or more",
             ),
             (
                 "epoch_rate_hz",
@@ -118,13 +109,7 @@ impl FusionConfig {
                 "max_scan_skew_s",
                 self.max_scan_skew_s,
                 self.max_scan_skew_s >= 0.0,
-                "a finite number of 0 or more",
-            ),
-            (
-                "estimate_decimation",
-                f64::from(self.estimate_decimation),
-                self.estimate_decimation >= 1,
-                "1 or more",
+                "set a finite number of 0 or more",
             ),
             (
                 "scan_stale_s",
@@ -136,20 +121,18 @@ impl FusionConfig {
                 "plane_confirmation_s",
                 self.plane_confirmation_s,
                 self.plane_confirmation_s >= 0.0,
-                "a finite number of 0 (off) or more",
+                "set a finite number of 0 (off) or more",
             ),
         ];
-        match checks
-            .into_iter()
-            .find(|(_, value, ok, _)| !(*ok && value.is_finite()))
-        {
-            Some((key, value, _, expected)) => Err(FusionError::Invalid {
-                key,
-                value,
-                expected,
-            }),
-            None => Ok(()),
+        for (key, value, ok, fix) in checks {
+            fusion.check(ok && value.is_finite(), key, value, fix);
         }
+        fusion.check(
+            self.estimate_decimation >= 1,
+            "estimate_decimation",
+            self.estimate_decimation,
+            "set 1 or more",
+        );
     }
 
     /// Seconds between epochs.
@@ -177,21 +160,33 @@ impl FusionConfig {
 }
 
 impl FusionSettings {
-    /// Checks every table and that the pose history spans an epoch interval.
-    pub fn validate(&self) -> Result<(), FusionError> {
-        self.fusion.validate()?;
-        self.odometry.validate()?;
-        self.integrity.validate()?;
-        self.filter.validate()?;
+    /// Every problem of the four tables, one line each.
+    pub fn validate(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| self.check(errors))
+    }
+
+    /// Adds every problem of the four tables to `errors`.
+    pub fn check(&self, errors: &mut ConfigErrors) {
+        self.fusion.check(errors);
+        self.odometry.check(errors);
+        self.integrity.check(errors);
+        self.filter.check(errors);
+        self.check_history(errors);
+    }
+
+    /// Adds a problem if the filter's pose history does not span an epoch interval: the one
+    /// check that needs two tables.
+    pub fn check_history(&self, errors: &mut ConfigErrors) {
         let needed = self.fusion.lookback_s() + self.fusion.max_scan_skew_s + HISTORY_MARGIN_S;
-        if needed > self.filter.pose_history_s {
-            return Err(FusionError::HistoryTooShort {
-                rate: self.fusion.epoch_rate_hz,
-                confirmation: self.fusion.plane_confirmation_s,
-                history: self.filter.pose_history_s,
-                needed,
-            });
-        }
-        Ok(())
+        errors.table("fusion").check(
+            // An infinite need is an epoch rate of 0, which its own line already names.
+            !(needed.is_finite() && needed > self.filter.pose_history_s),
+            "epoch_rate_hz",
+            self.fusion.epoch_rate_hz,
+            format!(
+                "with fusion.plane_confirmation_s = {:?} needs {needed:.2} s of pose history but filter.pose_history_s = {:?}: raise filter.pose_history_s, or the epoch rate, or lower the confirmation",
+                self.fusion.plane_confirmation_s, self.filter.pose_history_s
+            ),
+        );
     }
 }

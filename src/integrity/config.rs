@@ -1,7 +1,8 @@
 //! Integrity settings (`[integrity]` in the configuration) and their validation.
 
 use serde::{Deserialize, Serialize};
-use thiserror::Error;
+
+use crate::config::ConfigErrors;
 
 /// Risk budgets and the rules that decide when an epoch can be tested and a plane excluded.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,62 +44,54 @@ pub const MIN_PLANES_DISPLACEMENT: usize = 4;
 /// Three unknowns plus one redundant row, two rows a plane.
 pub const MIN_PLANES_ROTATION: usize = 2;
 
-/// A rejected `[integrity]` setting; Display is one line naming the key and the fix.
-#[derive(Debug, Clone, PartialEq, Error)]
-pub enum ConfigError {
-    #[error("integrity.{key} = {value} is outside (0, 1): use e.g. 1e-3")]
-    ProbabilityOutOfRange { key: &'static str, value: f64 },
-    #[error("integrity.{key} = {value} leaves no redundant row to test: use {minimum} or more")]
-    TooFewPlanes {
-        key: &'static str,
-        value: usize,
-        minimum: usize,
-    },
-    #[error("integrity.max_condition_number = {0} must be a finite number above 1: use e.g. 1e4")]
-    ConditionLimit(f64),
-}
-
 impl IntegrityConfig {
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        probability("false_alarm_probability", self.false_alarm_probability)?;
-        probability(
-            "missed_detection_probability",
-            self.missed_detection_probability,
-        )?;
-        at_least(
-            "min_planes_displacement",
-            self.min_planes_displacement,
-            MIN_PLANES_DISPLACEMENT,
-        )?;
-        at_least(
-            "min_planes_rotation",
-            self.min_planes_rotation,
-            MIN_PLANES_ROTATION,
-        )?;
-        if !(self.max_condition_number.is_finite() && self.max_condition_number > 1.0) {
-            return Err(ConfigError::ConditionLimit(self.max_condition_number));
+    /// Every problem of the table, one line each.
+    pub fn validate(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| self.check(errors))
+    }
+
+    /// Adds every problem of the table to `errors`.
+    pub fn check(&self, errors: &mut ConfigErrors) {
+        let mut integrity = errors.table("integrity");
+        for (key, value) in [
+            ("false_alarm_probability", self.false_alarm_probability),
+            (
+                "missed_detection_probability",
+                self.missed_detection_probability,
+            ),
+        ] {
+            integrity.check(
+                value > 0.0 && value < 1.0,
+                key,
+                value,
+                "must be in (0, 1): use e.g. 1e-3",
+            );
         }
-        Ok(())
-    }
-}
-
-fn probability(key: &'static str, value: f64) -> Result<(), ConfigError> {
-    if value > 0.0 && value < 1.0 {
-        Ok(())
-    } else {
-        Err(ConfigError::ProbabilityOutOfRange { key, value })
-    }
-}
-
-fn at_least(key: &'static str, value: usize, minimum: usize) -> Result<(), ConfigError> {
-    if value >= minimum {
-        Ok(())
-    } else {
-        Err(ConfigError::TooFewPlanes {
-            key,
-            value,
-            minimum,
-        })
+        for (key, value, minimum) in [
+            (
+                "min_planes_displacement",
+                self.min_planes_displacement,
+                MIN_PLANES_DISPLACEMENT,
+            ),
+            (
+                "min_planes_rotation",
+                self.min_planes_rotation,
+                MIN_PLANES_ROTATION,
+            ),
+        ] {
+            integrity.check(
+                value >= minimum,
+                key,
+                value,
+                format!("leaves no redundant row to test: use {minimum} or more"),
+            );
+        }
+        integrity.check(
+            self.max_condition_number.is_finite() && self.max_condition_number > 1.0,
+            "max_condition_number",
+            self.max_condition_number,
+            "must be a finite number above 1: use e.g. 1e4",
+        );
     }
 }
 
@@ -108,7 +101,7 @@ mod tests {
 
     #[test]
     fn defaults_are_valid_and_an_empty_table_gives_them() {
-        assert_eq!(IntegrityConfig::default().validate(), Ok(()));
+        assert!(IntegrityConfig::default().validate().is_ok());
         let parsed: IntegrityConfig = toml::from_str("").unwrap();
         assert_eq!(parsed, IntegrityConfig::default());
     }
@@ -121,7 +114,7 @@ mod tests {
         };
         assert_eq!(
             config.validate().unwrap_err().to_string(),
-            "integrity.false_alarm_probability = 1.5 is outside (0, 1): use e.g. 1e-3"
+            "integrity.false_alarm_probability = 1.5: must be in (0, 1): use e.g. 1e-3"
         );
         let config = IntegrityConfig {
             missed_detection_probability: 0.0,
@@ -129,7 +122,7 @@ mod tests {
         };
         assert_eq!(
             config.validate().unwrap_err().to_string(),
-            "integrity.missed_detection_probability = 0 is outside (0, 1): use e.g. 1e-3"
+            "integrity.missed_detection_probability = 0.0: must be in (0, 1): use e.g. 1e-3"
         );
         let config = IntegrityConfig {
             missed_detection_probability: f64::NAN,
@@ -146,7 +139,7 @@ mod tests {
         };
         assert_eq!(
             config.validate().unwrap_err().to_string(),
-            "integrity.min_planes_displacement = 3 leaves no redundant row to test: use 4 or more"
+            "integrity.min_planes_displacement = 3: leaves no redundant row to test: use 4 or more"
         );
         let config = IntegrityConfig {
             max_condition_number: f64::INFINITY,
@@ -154,7 +147,7 @@ mod tests {
         };
         assert_eq!(
             config.validate().unwrap_err().to_string(),
-            "integrity.max_condition_number = inf must be a finite number above 1: use e.g. 1e4"
+            "integrity.max_condition_number = inf: must be a finite number above 1: use e.g. 1e4"
         );
     }
 

@@ -26,7 +26,7 @@
 use super::config::IntegrityConfig;
 use super::parity::{test_system, SolveTest, Untestable};
 use super::thresholds::Thresholds;
-use super::ConfigError;
+use crate::config::ConfigErrors;
 use crate::estimate::IntegrityStatus;
 use crate::least_squares::{LinearSystem, Solution, SolveError};
 use serde::{Serialize, Serializer};
@@ -91,7 +91,7 @@ struct Track<'r, 'a> {
 }
 
 impl IntegrityMonitor {
-    pub fn new(config: IntegrityConfig) -> Result<Self, ConfigError> {
+    pub fn new(config: IntegrityConfig) -> Result<Self, ConfigErrors> {
         config.validate()?;
         let pfa = config.false_alarm_probability;
         let pmd = config.missed_detection_probability;

@@ -12,7 +12,7 @@ mod parity;
 mod protection;
 mod thresholds;
 
-pub use config::{ConfigError, IntegrityConfig, MIN_PLANES_DISPLACEMENT, MIN_PLANES_ROTATION};
+pub use config::{IntegrityConfig, MIN_PLANES_DISPLACEMENT, MIN_PLANES_ROTATION};
 pub use exclusion::{
     without_planes, EpochReport, IntegrityMonitor, Resolver, SolveKind, SolveReport,
 };

@@ -661,7 +661,7 @@ fn an_invalid_configuration_is_refused() {
     };
     assert_eq!(
         IntegrityMonitor::new(config).unwrap_err().to_string(),
-        "integrity.false_alarm_probability = -0.1 is outside (0, 1): use e.g. 1e-3"
+        "integrity.false_alarm_probability = -0.1: must be in (0, 1): use e.g. 1e-3"
     );
 }
 

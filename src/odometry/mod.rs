@@ -19,6 +19,7 @@ pub mod rotation;
 pub mod synthetic;
 pub mod uncertainty;
 
+use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};
 use crate::sensors::{Mount, Scan, ScannerGeometry};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
@@ -28,7 +29,6 @@ use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 use planes::{Plane, PlaneExtractor, PlaneParameters, ScanLines};
 use rotation::{solve_rotation, RotationParameters};
 use serde::{Deserialize, Serialize};
-use std::fmt;
 
 /// Settings of the geometry core. Every key has a default; unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -104,26 +104,6 @@ impl Default for OdometryConfig {
     }
 }
 
-/// A setting outside its meaningful range.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ConfigError {
-    pub key: &'static str,
-    pub value: f64,
-    pub expected: &'static str,
-}
-
-impl fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "odometry config: {} = {} is invalid; set it {}",
-            self.key, self.value, self.expected
-        )
-    }
-}
-
-impl std::error::Error for ConfigError {}
-
 impl OdometryConfig {
     /// The two match gates, as the matcher takes them.
     pub fn match_gates(&self) -> MatchGates {
@@ -133,10 +113,16 @@ impl OdometryConfig {
         }
     }
 
-    /// Checks every key, naming the first bad one.
-    pub fn validate(&self) -> Result<(), ConfigError> {
-        let positive = "to a finite number above 0";
-        let checks: [(&'static str, f64, bool, &'static str); 13] = [
+    /// Every problem of the table, one line each.
+    pub fn validate(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| self.check(errors))
+    }
+
+    /// Adds every problem of the table to `errors`.
+    pub fn check(&self, errors: &mut ConfigErrors) {
+        let mut odometry = errors.table("odometry");
+        let positive = "set it to a finite number above 0";
+        let checks = [
             (
                 "range_sigma_m",
                 self.range_sigma_m,
@@ -147,25 +133,19 @@ impl OdometryConfig {
                 "breakpoint_lambda_deg",
                 self.breakpoint_lambda_deg,
                 self.breakpoint_lambda_deg > 0.0 && self.breakpoint_lambda_deg < 90.0,
-                "between 0 and 90 degrees",
+                "set it between 0 and 90 degrees",
             ),
             (
                 "breakpoint_noise_sigmas",
                 self.breakpoint_noise_sigmas,
                 self.breakpoint_noise_sigmas >= 0.0,
-                "to 0 or more",
+                "set it to 0 or more",
             ),
             (
                 "split_distance_m",
                 self.split_distance_m,
                 self.split_distance_m > 0.0,
                 positive,
-            ),
-            (
-                "min_line_points",
-                self.min_line_points as f64,
-                self.min_line_points >= 3,
-                "to 3 or more",
             ),
             (
                 "min_line_length_m",
@@ -204,29 +184,27 @@ impl OdometryConfig {
                 positive,
             ),
             (
-                "rotation_max_iterations",
-                self.rotation_max_iterations as f64,
-                self.rotation_max_iterations >= 1,
-                "to 1 or more",
-            ),
-            (
                 "rotation_tolerance_rad",
                 self.rotation_tolerance_rad,
                 self.rotation_tolerance_rad > 0.0,
                 positive,
             ),
         ];
-        match checks
-            .into_iter()
-            .find(|(_, value, ok, _)| !(*ok && value.is_finite()))
-        {
-            Some((key, value, _, expected)) => Err(ConfigError {
-                key,
-                value,
-                expected,
-            }),
-            None => Ok(()),
+        for (key, value, ok, fix) in checks {
+            odometry.check(ok && value.is_finite(), key, value, fix);
         }
+        odometry.check(
+            self.min_line_points >= 3,
+            "min_line_points",
+            self.min_line_points,
+            "set it to 3 or more",
+        );
+        odometry.check(
+            self.rotation_max_iterations >= 1,
+            "rotation_max_iterations",
+            self.rotation_max_iterations,
+            "set it to 1 or more",
+        );
     }
 
     /// Line-extraction parameters for a scanner with this ranging sigma.
@@ -354,19 +332,20 @@ pub struct Odometer {
 }
 
 impl Odometer {
-    pub fn new(scanners: [ScannerSetup; 2], config: OdometryConfig) -> Result<Self, ConfigError> {
-        config.validate()?;
-        for scanner in &scanners {
-            if let Some(sigma) = scanner.range_sigma_m {
-                if !(sigma > 0.0 && sigma.is_finite()) {
-                    return Err(ConfigError {
-                        key: "range_sigma_m",
-                        value: sigma,
-                        expected: "to a finite number above 0",
-                    });
+    pub fn new(scanners: [ScannerSetup; 2], config: OdometryConfig) -> Result<Self, ConfigErrors> {
+        ConfigErrors::collect(|errors| {
+            config.check(errors);
+            for (k, scanner) in scanners.iter().enumerate() {
+                if let Some(sigma) = scanner.range_sigma_m {
+                    errors.table(&format!("scanner[{k}]")).check(
+                        sigma > 0.0 && sigma.is_finite(),
+                        "range_sigma_m",
+                        sigma,
+                        "set it to a finite number above 0",
+                    );
                 }
             }
-        }
+        })?;
         Ok(Self {
             config,
             scanners,
