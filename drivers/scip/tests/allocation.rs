@@ -2,7 +2,7 @@
 //! two buffers each scan event owns (it leaves the device, so they cannot be reused).
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::cell::Cell;
 
 use std::time::Duration;
 
@@ -10,11 +10,20 @@ use scip::{Body, Decoder, Device, DeviceConfig, Emulator, Event, Model, Reply};
 
 struct CountingAllocator;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    // Per thread, because the tests of this file run in parallel and allocate in their own
+    // set-up; const-initialised and without a destructor, so the allocator may touch it at any
+    // time.
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
 
 unsafe impl GlobalAlloc for CountingAllocator {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        let _ = ALLOCATIONS.try_with(|n| n.set(n.get() + 1));
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
@@ -58,15 +67,11 @@ fn decoder_and_device_do_not_allocate_per_scan_after_warm_up() {
         }
     };
     decoder.feed(&stream[..half], &mut count);
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = allocations();
     for chunk in stream[half..].chunks(100) {
         decoder.feed(chunk, &mut count);
     }
-    assert_eq!(
-        ALLOCATIONS.load(Ordering::Relaxed) - before,
-        0,
-        "decoder allocated"
-    );
+    assert_eq!(allocations() - before, 0, "decoder allocated");
     assert_eq!(scans, 60);
 
     // The device: its scans' ranges and intensities.
@@ -102,10 +107,10 @@ fn decoder_and_device_do_not_allocate_per_scan_after_warm_up() {
         scans
     };
     let warm_up = run(&mut device, &stream[..half]);
-    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    let before = allocations();
     let measured = run(&mut device, &stream[half..]);
     assert_eq!(
-        ALLOCATIONS.load(Ordering::Relaxed) - before,
+        allocations() - before,
         2 * measured,
         "device allocated more than each scan's ranges and intensities"
     );
