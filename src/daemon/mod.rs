@@ -6,28 +6,28 @@
 //! tasks, the chunk queue and the fusion loop's pipeline that `run` and `replay` share, and the
 //! emulated sensors `serve-emulators` offers.
 
-pub mod chunk_queue;
+pub(crate) mod chunk_queue;
 pub mod config;
-pub mod foxglove;
+pub(crate) mod foxglove;
 mod foxglove_schemas;
 pub mod fusion_estimator;
-pub mod health;
-pub mod in_process;
-pub mod latency;
-pub mod link;
+pub(crate) mod health;
+pub(crate) mod in_process;
+pub(crate) mod latency;
+pub(crate) mod link;
 pub mod mavlink_out;
-pub mod mavlink_task;
-pub mod outcomes;
-pub mod outputs;
+pub(crate) mod mavlink_task;
+pub(crate) mod outcomes;
+pub(crate) mod outputs;
 pub mod pipeline;
 pub mod readings;
-pub mod recorder_thread;
+pub(crate) mod recorder_thread;
 pub mod recording;
 pub mod replay;
 pub mod run;
-pub mod sensor_task;
+pub(crate) mod sensor_task;
 pub mod serve;
 pub mod simulate;
-pub mod sink;
+pub(crate) mod sink;
 pub mod truth;
-pub mod watchdog;
+pub(crate) mod watchdog;

@@ -13,19 +13,19 @@
 //!    directions come in as `Observability::from_unobservable(&directions)`.
 //! 4. `estimate()` fills the shared `Estimate` (the fusion sets `integrity`).
 
-pub mod alignment;
-pub mod config;
-pub mod consistency;
-pub mod covariance;
-pub mod divergence;
-pub mod eskf;
-pub mod history;
-pub mod relative_pose;
+pub(crate) mod alignment;
+pub(crate) mod config;
+pub(crate) mod consistency;
+pub(crate) mod covariance;
+pub(crate) mod divergence;
+pub(crate) mod eskf;
+pub(crate) mod history;
+pub(crate) mod relative_pose;
 pub mod state;
-pub mod strapdown;
+pub(crate) mod strapdown;
 #[cfg(test)]
 pub(crate) mod testkit;
-pub mod update;
+pub(crate) mod update;
 
 pub use config::{FilterConfig, RelativePoseUpdate};
 pub use consistency::{chi_square_quantile, mean_nees_interval, nees, nis, Normalised};

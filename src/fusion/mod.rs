@@ -9,7 +9,7 @@
 
 mod anchor;
 pub mod clock;
-pub mod config;
+pub(crate) mod config;
 mod confirmation;
 mod epoch;
 pub mod record;

@@ -11,13 +11,13 @@
 //! matching allocate nothing; only the returned solutions (and match list) are new each epoch.
 
 pub mod deskew;
-pub mod displacement;
+pub(crate) mod displacement;
 pub mod lines;
-pub mod matching;
+pub(crate) mod matching;
 pub mod planes;
-pub mod rotation;
+pub(crate) mod rotation;
 pub mod synthetic;
-pub mod uncertainty;
+pub(crate) mod uncertainty;
 
 use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};

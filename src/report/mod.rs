@@ -4,7 +4,7 @@
 //! autopilot was told. The SVG charts are inline and there is no script, so the file opens
 //! anywhere, offline, and can be mailed as it is.
 
-pub mod chart;
+pub(crate) mod chart;
 mod epochs;
 mod html;
 pub mod integrity;
