@@ -28,30 +28,14 @@ pub enum Reading {
 }
 
 impl Reading {
-    /// The driver event as a reading, if it carries data the fusion uses or counts.
+    /// The driver event as a reading, if it is a data event (the handshake's are the sensor
+    /// task's business).
     pub fn from_scanner(event: scip::Event) -> Option<Self> {
-        use scip::Event as E;
-        match event {
-            E::Parameters(_)
-            | E::ClockSample(_)
-            | E::Scan(_)
-            | E::DecodeError(_)
-            | E::Error(scip::DeviceError::BadParameters(_)) => Some(Self::Scanner(event)),
-            _ => None,
-        }
+        event.is_data().then_some(Self::Scanner(event))
     }
 
     pub fn from_imu(event: xbus::Event) -> Option<Self> {
-        use xbus::Event as E;
-        match event {
-            E::ProductCode(_)
-            | E::OutputConfiguration(_)
-            | E::Measuring
-            | E::Measurement(_)
-            | E::FrameDropped(_)
-            | E::BadMeasurement(_) => Some(Self::Imu(event)),
-            _ => None,
-        }
+        event.is_data().then_some(Self::Imu(event))
     }
 }
 

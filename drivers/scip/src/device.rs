@@ -167,6 +167,21 @@ pub enum Event {
     Error(DeviceError),
 }
 
+impl Event {
+    /// Whether the receiver emits it (and a bare `Receiver` fed the same bytes would too),
+    /// rather than the device's handshake.
+    pub fn is_data(&self) -> bool {
+        matches!(
+            self,
+            Event::Parameters(_)
+                | Event::ClockSample(_)
+                | Event::Scan(_)
+                | Event::DecodeError(_)
+                | Event::Error(DeviceError::BadParameters(_))
+        )
+    }
+}
+
 /// Counters for health reporting.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct DeviceStats {

@@ -352,17 +352,6 @@ fn a_finite_stream_counts_down_and_ends() {
     assert!(!rig.sensor.is_streaming());
 }
 
-fn is_data(event: &Event) -> bool {
-    matches!(
-        event,
-        Event::Parameters(_)
-            | Event::ClockSample(_)
-            | Event::Scan(_)
-            | Event::DecodeError(_)
-            | Event::Error(DeviceError::BadParameters(_))
-    )
-}
-
 /// A bare receiver fed what the device was fed emits the device's data events, in order.
 fn assert_receiver_agrees(rig: &Rig) {
     let mut receiver = Receiver::new();
@@ -371,7 +360,7 @@ fn assert_receiver_agrees(rig: &Rig) {
         receiver.handle_input(*now, bytes);
         replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
     }
-    let live: Vec<&Event> = rig.events.iter().filter(|e| is_data(e)).collect();
+    let live: Vec<&Event> = rig.events.iter().filter(|e| e.is_data()).collect();
     assert!(!live.is_empty());
     assert_eq!(live, replayed.iter().collect::<Vec<_>>());
     let stats = rig.device.stats();

@@ -7,8 +7,8 @@ use std::time::Duration;
 use proptest::prelude::*;
 use scip::encoding::{encode_value, push_data_blocks, push_summed_line};
 use scip::{
-    Body, Command, DataKind, Decoder, Device, DeviceConfig, DeviceError, Emulator, Event, Model,
-    Receiver, StepRange,
+    Body, Command, DataKind, Decoder, Device, DeviceConfig, Emulator, Event, Model, Receiver,
+    StepRange,
 };
 
 /// Replies a UTM-30LX sends in a session, each complete, for mixing with garbage.
@@ -41,17 +41,6 @@ fn session_replies() -> Vec<Vec<u8>> {
         replies.push(take(&mut sensor));
     }
     replies
-}
-
-fn is_data(event: &Event) -> bool {
-    matches!(
-        event,
-        Event::Parameters(_)
-            | Event::ClockSample(_)
-            | Event::Scan(_)
-            | Event::DecodeError(_)
-            | Event::Error(DeviceError::BadParameters(_))
-    )
 }
 
 fn data_kind() -> impl Strategy<Value = DataKind> {
@@ -294,7 +283,7 @@ proptest! {
             if device.poll_timeout().is_some_and(|t| t <= now) {
                 device.handle_timeout(now);
             }
-            live.extend(std::iter::from_fn(|| device.poll_event()).filter(is_data));
+            live.extend(std::iter::from_fn(|| device.poll_event()).filter(Event::is_data));
             replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
         }
         prop_assert_eq!(live, replayed);

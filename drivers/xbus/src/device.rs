@@ -295,6 +295,22 @@ pub enum Event {
     Failed(Error),
 }
 
+impl Event {
+    /// Whether the receiver emits it (and a bare `Receiver` fed the same bytes would too),
+    /// rather than the device's handshake.
+    pub fn is_data(&self) -> bool {
+        matches!(
+            self,
+            Event::ProductCode(_)
+                | Event::OutputConfiguration(_)
+                | Event::Measuring
+                | Event::Measurement(_)
+                | Event::FrameDropped(_)
+                | Event::BadMeasurement(_)
+        )
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct DeviceStats {
     pub framer: FramerStats,

@@ -6,7 +6,6 @@ mod support;
 use std::time::Duration;
 
 use proptest::prelude::*;
-use support::is_data;
 use xbus::mtdata2::encode_floats;
 use xbus::{
     encode_frame, items, Command, CoordinateSystem, DataId, DataItem, DataType, Device,
@@ -146,7 +145,7 @@ proptest! {
             at = cut;
         }
         device.handle_timeout(Duration::from_secs(100));
-        let live: Vec<Event> = std::iter::from_fn(|| device.poll_event()).filter(is_data).collect();
+        let live: Vec<Event> = std::iter::from_fn(|| device.poll_event()).filter(Event::is_data).collect();
         let replayed: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
         prop_assert_eq!(live, replayed);
         while device.poll_transmit(Duration::from_secs(100)).is_some() {}
@@ -175,7 +174,7 @@ proptest! {
             if device.poll_timeout().is_some_and(|t| t <= now) {
                 device.handle_timeout(now);
             }
-            live.extend(std::iter::from_fn(|| device.poll_event()).filter(is_data));
+            live.extend(std::iter::from_fn(|| device.poll_event()).filter(Event::is_data));
             replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
         }
         prop_assert_eq!(live, replayed);

@@ -5,18 +5,8 @@
 use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
-use scip::{Device, DeviceConfig, DeviceError, Event, Receiver};
+use scip::{Device, DeviceConfig, Event, Receiver};
 
-fn is_data(event: &Event) -> bool {
-    matches!(
-        event,
-        Event::Parameters(_)
-            | Event::ClockSample(_)
-            | Event::Scan(_)
-            | Event::DecodeError(_)
-            | Event::Error(DeviceError::BadParameters(_))
-    )
-}
 
 fuzz_target!(|data: &[u8]| {
     let mut now = Duration::from_millis(1);
@@ -27,7 +17,7 @@ fuzz_target!(|data: &[u8]| {
         device.handle_input(now, piece);
         receiver.handle_input(now, piece);
         let from_device: Vec<Event> = std::iter::from_fn(|| device.poll_event())
-            .filter(is_data)
+            .filter(Event::is_data)
             .collect();
         let from_receiver: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
         assert_eq!(from_device, from_receiver);

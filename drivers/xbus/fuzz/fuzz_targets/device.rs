@@ -8,17 +8,6 @@ use libfuzzer_sys::fuzz_target;
 use xbus::emulator::{Emulator, EmulatorOptions};
 use xbus::{Device, DeviceConfig, Event, Receiver};
 
-fn is_data(event: &Event) -> bool {
-    matches!(
-        event,
-        Event::ProductCode(_)
-            | Event::OutputConfiguration(_)
-            | Event::Measuring
-            | Event::Measurement(_)
-            | Event::FrameDropped(_)
-            | Event::BadMeasurement(_)
-    )
-}
 
 fuzz_target!(|data: &[u8]| {
     let config = DeviceConfig::default();
@@ -45,7 +34,7 @@ fuzz_target!(|data: &[u8]| {
         receiver.handle_input(now, chunk);
         device.handle_timeout(now);
         let live: Vec<Event> = std::iter::from_fn(|| device.poll_event())
-            .filter(is_data)
+            .filter(Event::is_data)
             .collect();
         let replayed: Vec<Event> = std::iter::from_fn(|| receiver.poll_event()).collect();
         assert_eq!(live, replayed);

@@ -87,18 +87,6 @@ impl Link {
     }
 }
 
-pub fn is_data(event: &Event) -> bool {
-    matches!(
-        event,
-        Event::ProductCode(_)
-            | Event::OutputConfiguration(_)
-            | Event::Measuring
-            | Event::Measurement(_)
-            | Event::FrameDropped(_)
-            | Event::BadMeasurement(_)
-    )
-}
-
 /// A bare receiver fed what the device was fed emits the device's data events, in order.
 pub fn assert_receiver_agrees(link: &Link) {
     let config = link.device.config();
@@ -108,7 +96,7 @@ pub fn assert_receiver_agrees(link: &Link) {
         receiver.handle_input(*now, bytes);
         replayed.extend(std::iter::from_fn(|| receiver.poll_event()));
     }
-    let live: Vec<Event> = link.log.iter().copied().filter(is_data).collect();
+    let live: Vec<Event> = link.log.iter().copied().filter(Event::is_data).collect();
     assert!(!live.is_empty());
     assert_eq!(live, replayed);
     let (device, receiver) = (link.device.stats(), receiver.stats());
