@@ -29,7 +29,7 @@ fn bundled() -> (Config, Vec<Chunk>) {
         .messages
         .into_iter()
         .map(|m| Chunk {
-            sensor: specs.iter().position(|s| s.name == m.sensor).unwrap(),
+            sensor: specs.iter().position(|s| s.name() == m.sensor).unwrap(),
             direction: m.direction,
             log_time_ns: m.log_time_ns,
             data: m.data,

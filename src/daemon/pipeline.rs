@@ -8,7 +8,7 @@
 //! its next bytes.
 
 use super::config::{Config, ImuConfig, ImuSeries, ScannerConfig};
-use super::readings::{DecodeCounts, Reading, SensorEvent, SensorSetup, SensorTiming};
+use super::readings::{DecodeCounts, Reading, SensorEvent, SensorTiming};
 use super::recording::{Direction, Encoding};
 use crate::estimate::Estimate;
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
@@ -30,20 +30,33 @@ pub struct Chunk {
     pub readings: Vec<Reading>,
 }
 
-/// A configured sensor as the pipeline and the recording know it.
+/// A configured sensor as the pipeline, the recording and the host timing know it; `name` is
+/// its recording topic `/<name>/rx`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct SensorSpec {
-    /// Recording topic `/<name>/rx`.
-    pub name: String,
-    pub setup: SensorSetup,
+pub enum SensorSpec {
+    /// Scanner number `index` of the configuration.
+    Scanner { name: String, index: usize },
+    /// The IMU: `sample_time_modulus` until the product code is seen, `rate_hz` until the
+    /// output configuration acknowledgement is.
+    Imu {
+        name: String,
+        sample_time_modulus: u64,
+        rate_hz: f64,
+    },
 }
 
 impl SensorSpec {
+    pub fn name(&self) -> &str {
+        match self {
+            Self::Scanner { name, .. } | Self::Imu { name, .. } => name,
+        }
+    }
+
     /// What its bytes speak.
     pub fn encoding(&self) -> Encoding {
-        match self.setup {
-            SensorSetup::Scanner { .. } => Encoding::Scip2,
-            SensorSetup::Imu { .. } => Encoding::Xbus,
+        match self {
+            Self::Scanner { .. } => Encoding::Scip2,
+            Self::Imu { .. } => Encoding::Xbus,
         }
     }
 }
@@ -64,22 +77,17 @@ pub fn configured_sensors(config: &Config) -> impl Iterator<Item = Configured<'_
 
 pub fn sensor_specs(config: &Config) -> Vec<SensorSpec> {
     let spec = |(number, sensor)| match sensor {
-        Configured::Scanner(scanner) => SensorSpec {
+        Configured::Scanner(scanner) => SensorSpec::Scanner {
             name: scanner.name.clone(),
-            setup: SensorSetup::Scanner {
-                index: number,
-                geometry: None,
-            },
+            index: number,
         },
-        Configured::Imu(imu) => SensorSpec {
+        Configured::Imu(imu) => SensorSpec::Imu {
             name: imu.name.clone(),
-            setup: SensorSetup::Imu {
-                sample_time_modulus: match imu.series {
-                    ImuSeries::Mti100 => xbus::ONE_DAY_TICKS,
-                    ImuSeries::Auto | ImuSeries::Mti600 => xbus::U32_TICKS,
-                },
-                rate_hz: f64::from(imu.rate_hz.max(1)),
+            sample_time_modulus: match imu.series {
+                ImuSeries::Mti100 => xbus::ONE_DAY_TICKS,
+                ImuSeries::Auto | ImuSeries::Mti600 => xbus::U32_TICKS,
             },
+            rate_hz: f64::from(imu.rate_hz.max(1)),
         },
     };
     configured_sensors(config).enumerate().map(spec).collect()
@@ -189,7 +197,7 @@ impl<E: Estimator> Pipeline<E> {
     pub fn new(specs: Vec<SensorSpec>, estimator: E) -> Self {
         let n = specs.len();
         Self {
-            timings: specs.iter().map(|s| SensorTiming::new(s.setup)).collect(),
+            timings: specs.iter().map(SensorTiming::new).collect(),
             specs,
             estimator,
             events: Vec::new(),
@@ -200,7 +208,7 @@ impl<E: Estimator> Pipeline<E> {
 
     /// Adds a sensor found in a recording without a configuration.
     pub fn with_sensor(mut self, spec: SensorSpec) -> Self {
-        self.timings.push(SensorTiming::new(spec.setup));
+        self.timings.push(SensorTiming::new(&spec));
         self.specs.push(spec);
         self.last_rx_ns.push(None);
         self.stale.push(false);
@@ -213,7 +221,7 @@ impl<E: Estimator> Pipeline<E> {
 
     /// Number of the sensor called `name`, if configured.
     pub fn sensor_named(&self, name: &str) -> Option<usize> {
-        self.specs.iter().position(|s| s.name == name)
+        self.specs.iter().position(|s| s.name() == name)
     }
 
     /// Takes one chunk; `out` receives what it completed. Transmitted bytes are only recorded.
@@ -339,12 +347,9 @@ mod tests {
     use super::*;
 
     fn specs() -> Vec<SensorSpec> {
-        let scanner = |index: usize, name: &str| SensorSpec {
+        let scanner = |index: usize, name: &str| SensorSpec::Scanner {
             name: name.into(),
-            setup: SensorSetup::Scanner {
-                index,
-                geometry: None,
-            },
+            index,
         };
         vec![scanner(0, "front"), scanner(1, "pitched")]
     }

@@ -10,7 +10,7 @@
 //! A raw port dump has no host times (`log_time_ns == 0` on every chunk): it is timed by the
 //! sensor's own clock, unwrapped, from the first sample.
 
-use super::pipeline::Chunk;
+use super::pipeline::{Chunk, SensorSpec};
 use super::recording::{Direction, Encoding};
 use crate::fusion::clock::{ClockConfig, ClockEstimator};
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
@@ -146,23 +146,6 @@ pub struct DecodeCounts {
     pub imu_samples: u64,
 }
 
-/// What a configured sensor needs to be timed.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SensorSetup {
-    /// Scanner number `index` in the configuration. `geometry` is used until a `PP` reply is
-    /// seen (a raw dump or a recording started mid-stream has none).
-    Scanner {
-        index: usize,
-        geometry: Option<ScannerGeometry>,
-    },
-    /// The IMU: `sample_time_modulus` until the product code is seen, `rate_hz` until the
-    /// output configuration acknowledgement is.
-    Imu {
-        sample_time_modulus: u64,
-        rate_hz: f64,
-    },
-}
-
 /// Turns one sensor's readings into host-timed measurements.
 #[derive(Debug)]
 pub enum SensorTiming {
@@ -171,14 +154,13 @@ pub enum SensorTiming {
 }
 
 impl SensorTiming {
-    pub fn new(setup: SensorSetup) -> Self {
-        match setup {
-            SensorSetup::Scanner { index, geometry } => {
-                Self::Scanner(ScannerTiming::new(index, geometry))
-            }
-            SensorSetup::Imu {
+    pub fn new(spec: &SensorSpec) -> Self {
+        match *spec {
+            SensorSpec::Scanner { index, .. } => Self::Scanner(ScannerTiming::new(index)),
+            SensorSpec::Imu {
                 sample_time_modulus,
                 rate_hz,
+                ..
             } => Self::Imu(ImuTiming::new(sample_time_modulus, rate_hz)),
         }
     }
@@ -270,10 +252,10 @@ pub struct ScannerTiming {
 }
 
 impl ScannerTiming {
-    fn new(index: usize, geometry: Option<ScannerGeometry>) -> Self {
+    fn new(index: usize) -> Self {
         Self {
             index,
-            geometry,
+            geometry: None,
             clock: DeviceClock::new(1000.0, 1 << 24),
             counts: DecodeCounts::default(),
         }

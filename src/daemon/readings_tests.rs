@@ -9,14 +9,10 @@ struct Decoder {
 }
 
 impl Decoder {
-    fn new(setup: SensorSetup) -> Self {
-        let encoding = match setup {
-            SensorSetup::Scanner { .. } => Encoding::Scip2,
-            SensorSetup::Imu { .. } => Encoding::Xbus,
-        };
+    fn new(spec: SensorSpec) -> Self {
         Self {
-            receiver: Receiver::new(encoding),
-            timing: SensorTiming::new(setup),
+            receiver: Receiver::new(spec.encoding()),
+            timing: SensorTiming::new(&spec),
         }
     }
 
@@ -70,9 +66,9 @@ fn decode(decoder: &mut Decoder, chunks: &[Exchanged]) -> Vec<SensorEvent> {
 }
 
 fn scanner_decoder() -> Decoder {
-    Decoder::new(SensorSetup::Scanner {
+    Decoder::new(SensorSpec::Scanner {
+        name: "pitched".into(),
         index: 1,
-        geometry: None,
     })
 }
 
@@ -150,16 +146,16 @@ fn garbage_is_counted_and_the_stream_recovers() {
 fn scans_before_any_geometry_are_dropped_and_counted() {
     let (chunks, _) = scanner_session(5);
     // Skip the handshake: a recording that starts mid-stream.
-    let tail: Vec<Exchanged> = chunks.into_iter().skip(20).collect();
+    let tail = &chunks[20..];
     let mut decoder = scanner_decoder();
-    let events = decode(&mut decoder, &tail);
+    let events = decode(&mut decoder, tail);
     assert!(events.is_empty());
-    assert!(decoder.counts().dropped > 0);
-    let mut with_default = Decoder::new(SensorSetup::Scanner {
-        index: 0,
-        geometry: Some(ScannerGeometry::URG_04LX),
-    });
-    assert!(!decode(&mut with_default, &tail).is_empty());
+    let dropped = decoder.counts().dropped;
+    assert!(dropped > 0);
+    // The same scans, after the handshake's PP: they were dropped for want of geometry alone.
+    let mut from_start = scanner_decoder();
+    decode(&mut from_start, &chunks);
+    assert!(from_start.counts().scans >= dropped, "{dropped} dropped");
 }
 
 #[test]
@@ -210,7 +206,8 @@ fn imu_session(
 }
 
 fn imu_decoder() -> Decoder {
-    Decoder::new(SensorSetup::Imu {
+    Decoder::new(SensorSpec::Imu {
+        name: "imu".into(),
         sample_time_modulus: xbus::ONE_DAY_TICKS,
         rate_hz: 50.0,
     })

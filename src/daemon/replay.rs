@@ -9,7 +9,7 @@ use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAUL
 use super::outcomes::OutcomeCounts;
 use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
-use super::readings::{DecodeCounts, Receivers, SensorSetup};
+use super::readings::{DecodeCounts, Receivers};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
@@ -362,7 +362,7 @@ pub fn replay<E: Estimator>(
         sensors: pipeline
             .specs()
             .iter()
-            .map(|s| s.name.clone())
+            .map(|s| s.name().to_string())
             .zip(pipeline.decode_counts())
             .collect(),
         estimates: routed.estimates,
@@ -461,19 +461,14 @@ impl<E: Estimator> Estimator for FromTime<E> {
 }
 
 fn spec_for(message: &RecordedMessage, index: usize) -> SensorSpec {
-    let setup = match message.encoding {
-        Encoding::Scip2 => SensorSetup::Scanner {
-            index,
-            geometry: None,
-        },
-        Encoding::Xbus => SensorSetup::Imu {
+    let name = message.sensor.clone();
+    match message.encoding {
+        Encoding::Scip2 => SensorSpec::Scanner { name, index },
+        Encoding::Xbus => SensorSpec::Imu {
+            name,
             sample_time_modulus: xbus::U32_TICKS,
             rate_hz: 100.0,
         },
-    };
-    SensorSpec {
-        name: message.sensor.clone(),
-        setup,
     }
 }
 

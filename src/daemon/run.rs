@@ -216,7 +216,7 @@ where
             .pipeline
             .specs()
             .iter()
-            .map(|s| s.name.clone())
+            .map(|s| s.name().to_string())
             .zip(fused.pipeline.decode_counts())
             .collect(),
         estimator: fused.pipeline.into_estimator(),
@@ -382,7 +382,7 @@ fn fusion_loop<E: Estimator>(
     let names: Vec<(Arc<str>, _)> = pipeline
         .specs()
         .iter()
-        .map(|s| (Arc::from(s.name.as_str()), s.encoding()))
+        .map(|s| (Arc::from(s.name()), s.encoding()))
         .collect();
     let mut chunks = 0;
     let mut latency = LatencyLog::new("scan-to-fused");
