@@ -4,6 +4,7 @@
 use divan::black_box;
 use ladar_odometer::daemon::mavlink_out::QualityPolicy;
 use ladar_odometer::daemon::replay::ReplaySummary;
+use ladar_odometer::daemon::sink::Tally;
 use ladar_odometer::estimate::{Estimate, IntegrityStatus};
 use ladar_odometer::report::RunReport;
 use ladar_odometer::sensors::TruthSample;
@@ -79,12 +80,12 @@ fn render_500_s(bencher: divan::Bencher) {
         chunks: 0,
         bytes: 0,
         sensors: Vec::new(),
-        estimates: estimates.len() as u64,
-        epochs: epochs.len() as u64,
-        planes: 6 * epochs.len() as u64,
-        detections: 0,
-        exclusions: 0,
-        outcomes: Default::default(),
+        outputs: Tally {
+            estimates: estimates.len() as u64,
+            epochs: epochs.len() as u64,
+            planes: 6 * epochs.len() as u64,
+            ..Tally::default()
+        },
         truth: None,
         autopilot: None,
         loss: None,

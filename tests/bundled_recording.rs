@@ -32,10 +32,14 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
         assert_eq!(counts.decode_errors, 0, "{name}");
     }
     // One epoch a second, every one after the first with planes from both scanners.
-    assert!(summary.epochs >= 70, "{summary}");
-    assert_eq!(summary.outcomes.total(), summary.epochs, "{summary}");
+    assert!(summary.outputs.epochs >= 70, "{summary}");
+    assert_eq!(
+        summary.outputs.outcomes.total(),
+        summary.outputs.epochs,
+        "{summary}"
+    );
     assert!(
-        summary.outcomes.get(Outcome::Fused) >= 50,
+        summary.outputs.outcomes.get(Outcome::Fused) >= 50,
         "most epochs after the stationary start are fused: {summary}"
     );
     assert!(
@@ -43,7 +47,7 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
         "{summary}"
     );
     assert!(
-        summary.planes as f64 / summary.epochs as f64 >= 4.0,
+        summary.outputs.planes as f64 / summary.outputs.epochs as f64 >= 4.0,
         "{summary}"
     );
 

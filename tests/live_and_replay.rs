@@ -387,7 +387,7 @@ async fn live_run_survives_an_unplug_records_every_byte_and_replays_bit_for_bit(
         format!("{:?}", replayed.epoch_estimates),
         format!("{:?}", report.estimator.epoch_estimates)
     );
-    assert_eq!(summary.estimates as usize, imu_samples);
+    assert_eq!(summary.outputs.estimates as usize, imu_samples);
     // The replay decides the same ODOMETRY messages: the live ones are its beginning (the
     // MAVLink task stops before the fusion has drained its last chunks).
     let replayed_odometry = tlog_odometry(&dir.join("replay-out").join("mavlink.tlog"));

@@ -28,6 +28,6 @@ pub mod run;
 pub(crate) mod sensor_task;
 pub mod serve;
 pub mod simulate;
-pub(crate) mod sink;
+pub mod sink;
 pub mod truth;
 pub(crate) mod watchdog;

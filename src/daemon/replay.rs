@@ -6,14 +6,13 @@ use super::config::Config;
 use super::foxglove::FoxgloveWriter;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
-use super::outcomes::OutcomeCounts;
 use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
 use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
 use super::readings::{DecodeCounts, Receivers};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
-use super::sink::{Autopilot, Sink};
+use super::sink::{Autopilot, Sink, Tally};
 use super::truth::{autopilot_view, truth_errors, AutopilotView, TruthErrors};
 use crate::estimate::Estimate;
 use crate::report::chart::ChartError;
@@ -87,13 +86,9 @@ pub struct ReplaySummary {
     pub chunks: u64,
     pub bytes: u64,
     pub sensors: Vec<(String, DecodeCounts)>,
-    pub estimates: u64,
-    pub epochs: u64,
-    pub planes: u64,
-    pub detections: u64,
-    pub exclusions: u64,
-    /// How the epochs ended.
-    pub outcomes: OutcomeCounts,
+    /// What the outputs added up to: estimates, epochs, planes, detections, exclusions and how
+    /// the epochs ended.
+    pub outputs: Tally,
     pub truth: Option<TruthErrors>,
     pub autopilot: Option<AutopilotView>,
     pub loss: Option<Loss>,
@@ -113,17 +108,18 @@ impl fmt::Display for ReplaySummary {
                 c.scans, c.imu_samples, c.decode_errors, c.dropped, c.lost_packets, c.clock_restarts
             )?;
         }
-        let per_epoch = if self.epochs > 0 {
-            self.planes as f64 / self.epochs as f64
+        let outputs = &self.outputs;
+        let per_epoch = if outputs.epochs > 0 {
+            outputs.planes as f64 / outputs.epochs as f64
         } else {
             0.0
         };
         writeln!(
             f,
             "  {} estimates, {} epochs, {per_epoch:.1} planes per epoch, {} detections, {} exclusions",
-            self.estimates, self.epochs, self.detections, self.exclusions
+            outputs.estimates, outputs.epochs, outputs.detections, outputs.exclusions
         )?;
-        writeln!(f, "  epochs: {}", self.outcomes)?;
+        writeln!(f, "  epochs: {}", outputs.outcomes)?;
         match &self.truth {
             Some(t) => {
                 writeln!(
@@ -267,14 +263,14 @@ pub fn replay<E: Estimator>(
             .map(|s| (s.name.clone(), s.mount()))
             .collect()
     });
-    let mut tally = Tally {
+    let mut tally = Kept {
         epoch_lines: options.report.then(Vec::new),
         foxglove: options
             .out
             .as_deref()
             .map(|dir| FoxgloveWriter::create(dir, &scanners))
             .transpose()?,
-        ..Tally::default()
+        ..Kept::default()
     };
     let started = Instant::now();
     let mut next = first;
@@ -365,12 +361,7 @@ pub fn replay<E: Estimator>(
             .map(|s| s.name().to_string())
             .zip(pipeline.decode_counts())
             .collect(),
-        estimates: routed.estimates,
-        epochs: routed.epochs,
-        planes: routed.planes,
-        detections: routed.detections,
-        exclusions: routed.exclusions,
-        outcomes: routed.outcomes,
+        outputs: routed,
         truth: ned_truth,
         autopilot: autopilot_view(&tally.kept, &truth, &policy),
         loss: reader.loss().cloned(),
@@ -492,7 +483,7 @@ const KEPT_ESTIMATE_HZ: f64 = 20.0;
 /// What a replay keeps beside the outputs every run writes: the byte counts, the estimates for
 /// the truth comparison, and what the report and `estimate.mcap` draw.
 #[derive(Default)]
-struct Tally {
+struct Kept {
     chunks: u64,
     bytes: u64,
     first_ns: Option<u64>,
@@ -503,7 +494,7 @@ struct Tally {
     foxglove: Option<FoxgloveWriter>,
 }
 
-impl Tally {
+impl Kept {
     fn chunk(&mut self, message: &RecordedMessage) {
         self.chunks += 1;
         self.bytes += message.data.len() as u64;

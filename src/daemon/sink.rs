@@ -30,7 +30,7 @@ pub trait Autopilot {
 }
 
 /// What the outputs added up to.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct Tally {
     pub estimates: u64,
     pub epochs: u64,

@@ -79,17 +79,20 @@ impl Page {
     /// The summary table in the paper's format, then the replay's own summary in full.
     pub fn summary(&mut self, summary: &ReplaySummary) {
         self.section("Summary", "Error statistics as the paper gives them (standard deviation per axis; attitude in mrad), the integrity monitor's work, and how honest the velocity sent to the autopilot was.");
-        let per_epoch = summary.planes as f64 / summary.epochs.max(1) as f64;
+        let per_epoch = summary.outputs.planes as f64 / summary.outputs.epochs.max(1) as f64;
         let mut rows = vec![
             row("replayed", format!("{:.1} s", summary.duration_s)),
             row(
                 "estimates / epochs",
-                format!("{} / {}", summary.estimates, summary.epochs),
+                format!("{} / {}", summary.outputs.estimates, summary.outputs.epochs),
             ),
             row("planes per epoch", format!("{per_epoch:.1}")),
             row(
                 "detections / exclusions",
-                format!("{} / {}", summary.detections, summary.exclusions),
+                format!(
+                    "{} / {}",
+                    summary.outputs.detections, summary.outputs.exclusions
+                ),
             ),
         ];
         if let Some(truth) = &summary.truth {
