@@ -273,6 +273,9 @@ pub fn replay<E: Estimator>(
         ..Kept::default()
     };
     let started = Instant::now();
+    // One list of readings for the whole replay: a new one per chunk was the replay's largest
+    // allocation (an IMU event is a few hundred bytes, and a list starts with room for four).
+    let mut spare_readings = Vec::new();
     let mut next = first;
     while let Some(message) = next {
         if until_s.is_some_and(|until| message.log_time_ns as f64 * 1e-9 > until) {
@@ -309,7 +312,7 @@ pub fn replay<E: Estimator>(
             direction: message.direction,
             log_time_ns: message.log_time_ns,
             data: message.data,
-            readings: Vec::new(),
+            readings: std::mem::take(&mut spare_readings),
         };
         receivers.decode(&mut chunk);
         let mut failure = None;
@@ -322,6 +325,8 @@ pub fn replay<E: Estimator>(
         if let Some(e) = failure {
             return Err(e);
         }
+        spare_readings = chunk.readings;
+        spare_readings.clear();
         tally.tapped(pipeline.estimator_mut().drain_tapped())?;
         progress.set_position(reader.position().0);
         next = reader.next_message()?;
