@@ -181,8 +181,8 @@ impl SensorTiming {
         match (self, reading) {
             (Self::Scanner(t), Reading::Scanner(event)) => t.take(received, event, events),
             (Self::Imu(t), Reading::Imu(event)) => t.take(received, event, events),
-            // A recording that names a scanner's topic with IMU bytes (or the reverse) decodes
-            // to nothing usable; its readings are counted as errors.
+            // Each sensor's readings come from a decoder of its own encoding, so this arm means
+            // a caller crossed two sensors' chunks: counted as errors, never fused.
             (Self::Scanner(ScannerTiming { counts, .. }), _)
             | (Self::Imu(ImuTiming { counts, .. }), _) => counts.decode_errors += 1,
         }

@@ -245,10 +245,10 @@ pub fn replay<E: Estimator>(
     };
     let mut receivers = Receivers::new(specs.iter().map(SensorSpec::encoding));
     let mut pipeline = Pipeline::new(specs, estimator);
-    let mut sink = Sink::new(Some(MavlinkOut::new(
+    let mut sink = Sink::new(MavlinkOut::new(
         config.as_ref(),
         options.mavlink.as_deref(),
-    )?));
+    )?);
     let mut outputs = options.out.as_deref().map(Outputs::create).transpose()?;
     tracing::info!(
         recording = %path.display(),
@@ -355,7 +355,7 @@ pub fn replay<E: Estimator>(
         truth_errors(&tally.kept, &truth, stationary_start_s)
     };
     let (mavlink, routed) = sink.into_parts();
-    let policy = mavlink.map_or_else(QualityPolicy::default, |m| m.stream.policy());
+    let policy = mavlink.stream.policy();
     let summary = ReplaySummary {
         duration_s: tally.duration_s(),
         chunks: tally.chunks,

@@ -224,7 +224,7 @@ where
         chunks: fused.chunks,
         latency,
         fused_latency: fused.latency.summary(),
-        mavlink_dropped: fused.sink.autopilot().map_or(0, Feed::dropped),
+        mavlink_dropped: fused.sink.autopilot().as_ref().map_or(0, Feed::dropped),
         dropped_chunks: queue.dropped(),
         unrecorded_chunks,
         recording,
@@ -366,7 +366,7 @@ struct Fused<E: Estimator> {
     pipeline: Pipeline<E>,
     chunks: u64,
     latency: LatencyLog,
-    sink: Sink<Feed>,
+    sink: Sink<Option<Feed>>,
 }
 
 /// The fusion thread: consumption order is recording order is replay order.

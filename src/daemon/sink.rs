@@ -29,6 +29,29 @@ pub trait Autopilot {
     ) -> Result<(), Self::Error>;
 }
 
+/// No autopilot link (`run` without `[mavlink]`): the estimates go to the files only.
+impl<A: Autopilot> Autopilot for Option<A> {
+    type Error = A::Error;
+    fn estimate(
+        &mut self,
+        estimate: &Estimate,
+        files: Option<&mut Outputs>,
+    ) -> Result<(), Self::Error> {
+        self.as_mut()
+            .map_or(Ok(()), |autopilot| autopilot.estimate(estimate, files))
+    }
+    fn epoch_estimate(
+        &mut self,
+        estimate: &Estimate,
+        read_ns: u64,
+        files: Option<&mut Outputs>,
+    ) -> Result<(), Self::Error> {
+        self.as_mut().map_or(Ok(()), |autopilot| {
+            autopilot.epoch_estimate(estimate, read_ns, files)
+        })
+    }
+}
+
 /// What the outputs added up to.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Tally {
@@ -42,13 +65,13 @@ pub struct Tally {
 
 /// The one route of the fusion's outputs.
 pub struct Sink<A> {
-    autopilot: Option<A>,
+    autopilot: A,
     tally: Tally,
     warnings: OutcomeWarnings,
 }
 
 impl<A: Autopilot> Sink<A> {
-    pub fn new(autopilot: Option<A>) -> Self {
+    pub fn new(autopilot: A) -> Self {
         Self {
             autopilot,
             tally: Tally::default(),
@@ -69,14 +92,10 @@ impl<A: Autopilot> Sink<A> {
                 if let Some(files) = files.as_deref_mut() {
                     files.trajectory(estimate)?;
                 }
-                if let Some(autopilot) = &mut self.autopilot {
-                    autopilot.estimate(estimate, files)?;
-                }
+                self.autopilot.estimate(estimate, files)?;
             }
             Output::EpochEstimate(estimate) => {
-                if let Some(autopilot) = &mut self.autopilot {
-                    autopilot.epoch_estimate(estimate, read_ns, files)?;
-                }
+                self.autopilot.epoch_estimate(estimate, read_ns, files)?;
             }
             Output::Epoch(epoch) => {
                 self.epoch::<E>(epoch, read_ns as f64 * 1e-9);
@@ -111,11 +130,11 @@ impl<A: Autopilot> Sink<A> {
         &self.tally
     }
 
-    pub fn autopilot(&self) -> Option<&A> {
-        self.autopilot.as_ref()
+    pub fn autopilot(&self) -> &A {
+        &self.autopilot
     }
 
-    pub fn into_parts(self) -> (Option<A>, Tally) {
+    pub fn into_parts(self) -> (A, Tally) {
         (self.autopilot, self.tally)
     }
 }
