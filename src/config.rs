@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 /// One problem: `filter.max_imu_gap_s = -1.0: set a finite value greater than zero`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ConfigError {
+pub(crate) struct ConfigError {
     /// `table.key` as the file writes it (`filter.max_imu_gap_s`, `scanner[1].cluster`), a
     /// table's name for a problem of the whole table, or empty for the file itself (unreadable,
     /// not TOML).
@@ -22,7 +22,7 @@ pub struct ConfigError {
 
 impl ConfigError {
     /// A problem with no value to show and no place in the text.
-    pub fn new(key: impl Into<String>, problem: impl Into<String>) -> Self {
+    pub(crate) fn new(key: impl Into<String>, problem: impl Into<String>) -> Self {
         Self {
             key: key.into(),
             value: None,
@@ -62,7 +62,7 @@ pub struct ConfigErrors {
 
 impl ConfigErrors {
     /// Problems of the file at `path`.
-    pub fn in_file(path: &Path) -> Self {
+    pub(crate) fn in_file(path: &Path) -> Self {
         Self {
             file: Some(path.to_path_buf()),
             errors: Vec::new(),
@@ -70,27 +70,23 @@ impl ConfigErrors {
     }
 
     /// What `check` finds, or `Ok`: how a table's `validate` wraps its `check`.
-    pub fn collect(check: impl FnOnce(&mut Self)) -> Result<(), Self> {
+    pub(crate) fn collect(check: impl FnOnce(&mut Self)) -> Result<(), Self> {
         let mut errors = Self::default();
         check(&mut errors);
         errors.into_result()
     }
 
-    pub fn errors(&self) -> &[ConfigError] {
-        &self.errors
-    }
-
-    pub fn push(&mut self, error: ConfigError) {
+    pub(crate) fn push(&mut self, error: ConfigError) {
         self.errors.push(error);
     }
 
     /// Checks on the keys of table `name` (`filter`, `scanner[1]`).
-    pub fn table<'a>(&'a mut self, name: &'a str) -> Table<'a> {
+    pub(crate) fn table<'a>(&'a mut self, name: &'a str) -> Table<'a> {
         Table { name, errors: self }
     }
 
     /// `Ok` when nothing was found.
-    pub fn into_result(self) -> Result<(), Self> {
+    pub(crate) fn into_result(self) -> Result<(), Self> {
         if self.errors.is_empty() {
             Ok(())
         } else {
@@ -117,7 +113,7 @@ impl fmt::Display for ConfigErrors {
 impl std::error::Error for ConfigErrors {}
 
 /// The keys of one table, named `table.key` in the problems.
-pub struct Table<'a> {
+pub(crate) struct Table<'a> {
     name: &'a str,
     errors: &'a mut ConfigErrors,
 }
@@ -125,7 +121,7 @@ pub struct Table<'a> {
 impl Table<'_> {
     /// Unless `ok`, records that `key` holds `value` and what to do about it. Values show as
     /// Rust prints them (`-1.0`, `inf`, `"tcp:host"`), close to how TOML writes them.
-    pub fn check(
+    pub(crate) fn check(
         &mut self,
         ok: bool,
         key: &str,
@@ -138,7 +134,7 @@ impl Table<'_> {
     }
 
     /// Records that `key` holds `value` and what to do about it.
-    pub fn refuse(&mut self, key: &str, value: impl fmt::Debug, problem: impl Into<String>) {
+    pub(crate) fn refuse(&mut self, key: &str, value: impl fmt::Debug, problem: impl Into<String>) {
         self.errors.push(ConfigError {
             key: format!("{}.{key}", self.name),
             value: Some(format!("{value:?}")),

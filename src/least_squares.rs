@@ -7,7 +7,7 @@ use std::fmt;
 
 /// Relative eigenvalue of the information matrix below which a direction counts as unobserved.
 /// Planes within about 0.5 deg of parallel leave their common normal's complement this weak.
-pub const OBSERVABILITY_TOLERANCE: f64 = 1e-6;
+pub(crate) const OBSERVABILITY_TOLERANCE: f64 = 1e-6;
 
 /// Relative eigenvalue of the normals' own geometry below which a direction counts as
 /// unobserved by the planes, whatever their weights: normals within about 1.8 deg of parallel
@@ -18,7 +18,7 @@ pub const OBSERVABILITY_TOLERANCE: f64 = 1e-6;
 /// errors times the motion, which fused told the filter the corridor's velocity far more
 /// precisely than any surface had measured it. The weights do not enter: a direction is seen
 /// by surfaces that face it, however well or badly they were measured.
-pub const PARALLEL_TOLERANCE: f64 = 1e-3;
+pub(crate) const PARALLEL_TOLERANCE: f64 = 1e-3;
 
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinearSystem {
@@ -87,7 +87,7 @@ impl LinearSystem {
 
     /// As `solve`, refusing directions whose information is at most `tolerance` of the
     /// strongest direction's.
-    pub fn solve_within(self, tolerance: f64) -> Result<Solution, SolveError> {
+    pub(crate) fn solve_within(self, tolerance: f64) -> Result<Solution, SolveError> {
         let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
         let r_inv_h = r_chol.solve(&self.h);
         let r_inv_y = r_chol.solve(&self.y);
@@ -118,12 +118,12 @@ impl LinearSystem {
 }
 
 /// Eigenvectors of the information matrix whose eigenvalue is negligible against the largest.
-pub fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
+pub(crate) fn weakest_directions(information: &Matrix3<f64>) -> Vec<Vector3<f64>> {
     directions_below(information, OBSERVABILITY_TOLERANCE)
 }
 
 /// Eigenvectors of a symmetric matrix whose eigenvalue is at most `tolerance` of the largest.
-pub fn directions_below(matrix: &Matrix3<f64>, tolerance: f64) -> Vec<Vector3<f64>> {
+pub(crate) fn directions_below(matrix: &Matrix3<f64>, tolerance: f64) -> Vec<Vector3<f64>> {
     let eigen = SymmetricEigen::new(*matrix);
     let largest = eigen.eigenvalues.amax();
     (0..3)

@@ -10,10 +10,10 @@ use std::sync::{Condvar, Mutex, PoisonError};
 use std::time::Duration;
 
 /// At 1 kHz of IMU frames plus 4 x 40 Hz scan reads, about two seconds.
-pub const QUEUE_CHUNKS: usize = 2048;
+pub(crate) const QUEUE_CHUNKS: usize = 2048;
 
 #[derive(Debug)]
-pub struct ChunkQueue {
+pub(crate) struct ChunkQueue {
     state: Mutex<State>,
     ready: Condvar,
     capacity: usize,
@@ -28,7 +28,7 @@ struct State {
 
 /// What [`ChunkQueue::pop`] found.
 #[derive(Debug, PartialEq)]
-pub enum Popped {
+pub(crate) enum Popped {
     Chunk(Chunk),
     /// Nothing within the wait; the consumer may check on other things and wait again.
     Idle,
@@ -37,7 +37,7 @@ pub enum Popped {
 }
 
 impl ChunkQueue {
-    pub fn new(capacity: usize) -> Self {
+    pub(crate) fn new(capacity: usize) -> Self {
         Self {
             state: Mutex::new(State::default()),
             ready: Condvar::new(),
@@ -47,7 +47,7 @@ impl ChunkQueue {
     }
 
     /// Appends a chunk, dropping the oldest if full. Never blocks beyond the brief lock.
-    pub fn push(&self, chunk: Chunk) {
+    pub(crate) fn push(&self, chunk: Chunk) {
         let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
         if state.closed {
             return;
@@ -68,7 +68,7 @@ impl ChunkQueue {
     }
 
     /// The oldest chunk, waiting up to `wait` for one.
-    pub fn pop(&self, wait: Duration) -> Popped {
+    pub(crate) fn pop(&self, wait: Duration) -> Popped {
         let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
         if state.chunks.is_empty() && !state.closed {
             state = self
@@ -85,7 +85,7 @@ impl ChunkQueue {
     }
 
     /// No more chunks will be accepted; the consumer drains what is queued, then sees `Closed`.
-    pub fn close(&self) {
+    pub(crate) fn close(&self) {
         self.state
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
@@ -93,7 +93,7 @@ impl ChunkQueue {
         self.ready.notify_all();
     }
 
-    pub fn dropped(&self) -> u64 {
+    pub(crate) fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
     }
 }

@@ -9,7 +9,7 @@ use super::link::{parse_key_hex, read_key_file, LinkAddress, Signing};
 use super::mavlink_out::{Identity, Profile, DEFAULT_COMPONENT_ID};
 use crate::config::{ConfigError, Table};
 // `run` and `serve` take the errors of `Config::parse` from here.
-pub use crate::config::ConfigErrors;
+pub(crate) use crate::config::ConfigErrors;
 use crate::sensors::Mount;
 use serde::de::DeserializeOwned;
 use serde::Deserialize;
@@ -149,7 +149,7 @@ impl ScannerConfig {
         1
     }
 
-    pub fn mount(&self) -> Mount {
+    pub(crate) fn mount(&self) -> Mount {
         Mount::from_rpy_deg(self.rpy_deg, self.translation_m)
     }
 
@@ -212,10 +212,6 @@ impl ImuConfig {
         ImuSeries::Auto
     }
 
-    pub fn mount(&self) -> Mount {
-        Mount::from_rpy_deg(self.rpy_deg, self.translation_m)
-    }
-
     /// Valid after [`Config::parse`].
     pub fn connection(&self) -> SensorConnection {
         self.connection
@@ -250,19 +246,19 @@ impl MavlinkConfig {
         DEFAULT_COMPONENT_ID
     }
 
-    pub fn identity(&self) -> Identity {
+    pub(crate) fn identity(&self) -> Identity {
         Identity {
             system_id: self.system_id,
             component_id: self.component_id,
         }
     }
 
-    pub fn rate_hz(&self) -> f64 {
+    pub(crate) fn rate_hz(&self) -> f64 {
         self.rate_hz.unwrap_or(self.profile.default_rate_hz())
     }
 
     /// Valid after [`Config::parse`].
-    pub fn address(&self) -> LinkAddress {
+    pub(crate) fn address(&self) -> LinkAddress {
         self.connection
             .parse()
             .expect("validated when the configuration was loaded")
@@ -270,7 +266,7 @@ impl MavlinkConfig {
 
     /// Reads the key (again, from the file if it is one): valid after [`Config::parse`] unless
     /// the key file changed since.
-    pub fn signing(&self) -> Result<Option<Signing>, String> {
+    pub(crate) fn signing(&self) -> Result<Option<Signing>, String> {
         self.signing
             .as_ref()
             .map(SigningConfigSection::resolve)
@@ -329,7 +325,7 @@ impl RecordingConfig {
     }
 
     /// The directory to record into, or `None` when recording is off.
-    pub fn directory(&self) -> Option<PathBuf> {
+    pub(crate) fn directory(&self) -> Option<PathBuf> {
         (self.path != "off").then(|| PathBuf::from(&self.path))
     }
 }

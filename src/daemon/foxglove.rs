@@ -17,7 +17,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-pub const FOXGLOVE_FILE: &str = "estimate.mcap";
+pub(crate) const FOXGLOVE_FILE: &str = "estimate.mcap";
 
 /// Side of the box drawn for a plane, m: a plane has no edges, so the box shows where it lies
 /// and how it is turned.
@@ -41,7 +41,7 @@ struct Scanner {
     geometry: Option<ScannerGeometry>,
 }
 
-pub struct FoxgloveWriter {
+pub(crate) struct FoxgloveWriter {
     path: PathBuf,
     writer: Writer<BufWriter<File>>,
     channels: Channels,
@@ -52,7 +52,7 @@ pub struct FoxgloveWriter {
 
 impl FoxgloveWriter {
     /// `scanners`: each scanner's name and mount, in configuration order.
-    pub fn create(dir: &Path, scanners: &[(String, Mount)]) -> Result<Self, OutputError> {
+    pub(crate) fn create(dir: &Path, scanners: &[(String, Mount)]) -> Result<Self, OutputError> {
         let path = dir.join(FOXGLOVE_FILE);
         let fail = |e: mcap::McapError| write_error(&path, e);
         let file = File::create(&path).map_err(|source| OutputError::Write {
@@ -104,7 +104,7 @@ impl FoxgloveWriter {
         })
     }
 
-    pub fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
+    pub(crate) fn geometry(&mut self, scanner: usize, geometry: ScannerGeometry) {
         if let Some(s) = self.scanners.get_mut(scanner) {
             s.geometry = Some(geometry);
         }
@@ -112,7 +112,7 @@ impl FoxgloveWriter {
 
     /// The scan as `foxglove.LaserScan` in its scanner's frame, stamped at its first reading;
     /// invalid readings (NaN) become null, which Foxglove leaves out.
-    pub fn scan(&mut self, scan: &Scan) -> Result<(), OutputError> {
+    pub(crate) fn scan(&mut self, scan: &Scan) -> Result<(), OutputError> {
         let Some(scanner) = self.scanners.get(scan.sensor) else {
             return Ok(());
         };
@@ -136,7 +136,7 @@ impl FoxgloveWriter {
     }
 
     /// The pose on `/pose` and `/tf`; with the first, each scanner's mount on `/tf`.
-    pub fn estimate(&mut self, estimate: &Estimate) -> Result<(), OutputError> {
+    pub(crate) fn estimate(&mut self, estimate: &Estimate) -> Result<(), OutputError> {
         let t = estimate.t;
         if !self.mounts_published {
             self.mounts_published = true;
@@ -160,7 +160,7 @@ impl FoxgloveWriter {
     }
 
     /// An epoch's line of `epochs.jsonl`: its planes on `/planes`, its verdict on `/integrity`.
-    pub fn epoch(&mut self, line: &Value) -> Result<(), OutputError> {
+    pub(crate) fn epoch(&mut self, line: &Value) -> Result<(), OutputError> {
         let Some(t) = line["t"].as_f64() else {
             return Ok(());
         };
@@ -211,7 +211,7 @@ impl FoxgloveWriter {
         Ok(())
     }
 
-    pub fn finish(mut self) -> Result<(), OutputError> {
+    pub(crate) fn finish(mut self) -> Result<(), OutputError> {
         self.writer
             .finish()
             .map(|_| ())

@@ -14,7 +14,7 @@ fn pose() -> String {
 }
 
 /// `foxglove.PoseInFrame`: the estimated pose.
-pub fn pose_in_frame() -> String {
+pub(crate) fn pose_in_frame() -> String {
     format!(
         r#"{{"title":"foxglove.PoseInFrame","type":"object","properties":{{"timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{}}}}}"#,
         pose()
@@ -22,14 +22,14 @@ pub fn pose_in_frame() -> String {
 }
 
 /// `foxglove.FrameTransform`: navigation to body, body to each scanner.
-pub fn frame_transform() -> String {
+pub(crate) fn frame_transform() -> String {
     format!(
         r#"{{"title":"foxglove.FrameTransform","type":"object","properties":{{"timestamp":{TIME},"parent_frame_id":{{"type":"string"}},"child_frame_id":{{"type":"string"}},"translation":{VECTOR3},"rotation":{QUATERNION}}}}}"#
     )
 }
 
 /// `foxglove.LaserScan`: one scanner's readings in its own frame.
-pub fn laser_scan() -> String {
+pub(crate) fn laser_scan() -> String {
     format!(
         r#"{{"title":"foxglove.LaserScan","type":"object","properties":{{"timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"start_angle":{{"type":"number"}},"end_angle":{{"type":"number"}},"ranges":{{"type":"array","items":{{"type":"number"}}}},"intensities":{{"type":"array","items":{{"type":"number"}}}}}}}}"#,
         pose()
@@ -37,7 +37,7 @@ pub fn laser_scan() -> String {
 }
 
 /// `foxglove.SceneUpdate` with cube entities: the planes of an epoch.
-pub fn scene_update() -> String {
+pub(crate) fn scene_update() -> String {
     let cube = format!(
         r#"{{"type":"object","properties":{{"pose":{},"size":{VECTOR3},"color":{COLOR}}}}}"#,
         pose()
@@ -51,7 +51,7 @@ pub fn scene_update() -> String {
 }
 
 /// `foxglove.Log`: the integrity monitor's verdicts other than "ok", and resets.
-pub fn log() -> String {
+pub(crate) fn log() -> String {
     format!(
         r#"{{"title":"foxglove.Log","type":"object","properties":{{"timestamp":{TIME},"level":{{"type":"integer","enum":[0,1,2,3,4,5]}},"message":{{"type":"string"}},"name":{{"type":"string"}},"file":{{"type":"string"}},"line":{{"type":"integer","minimum":0}}}}}}"#
     )

@@ -11,7 +11,7 @@ use super::mavlink_out::QualityPolicy;
 /// A restart stays in the status line this long, s.
 const RESTART_SHOWN_S: f64 = 30.0;
 
-pub struct Health {
+pub(crate) struct Health {
     /// Sensor names in pipeline order.
     names: Vec<String>,
     policy: QualityPolicy,
@@ -22,7 +22,7 @@ pub struct Health {
 }
 
 impl Health {
-    pub fn new(names: Vec<String>) -> Self {
+    pub(crate) fn new(names: Vec<String>) -> Self {
         Self {
             stale: vec![false; names.len()],
             names,
@@ -35,7 +35,7 @@ impl Health {
 
     /// Takes the newest estimate (if the chunk produced one) and each sensor's staleness at
     /// `now_s`; returns the status line when it changed.
-    pub fn observe(
+    pub(crate) fn observe(
         &mut self,
         estimate: Option<&Estimate>,
         stale: &[bool],

@@ -8,12 +8,12 @@ use super::recording::Direction;
 use std::time::Duration;
 
 /// One chunk exchanged with a device: direction, host time in ns, bytes.
-pub type Exchanged = (Direction, u64, Vec<u8>);
+pub(crate) type Exchanged = (Direction, u64, Vec<u8>);
 
 /// A SCIP host driver against an emulated scanner whose millisecond clock runs
 /// `device_offset_ms` ahead of the host clock.
 #[derive(Debug)]
-pub struct ScipRig {
+pub(crate) struct ScipRig {
     pub device: scip::Device,
     pub emulator: scip::Emulator,
     device_offset_ms: u32,
@@ -21,7 +21,11 @@ pub struct ScipRig {
 }
 
 impl ScipRig {
-    pub fn new(model: scip::Model, config: scip::DeviceConfig, device_offset_ms: u32) -> Self {
+    pub(crate) fn new(
+        model: scip::Model,
+        config: scip::DeviceConfig,
+        device_offset_ms: u32,
+    ) -> Self {
         Self {
             device: scip::Device::new(config, Duration::ZERO),
             emulator: scip::Emulator::new(model),
@@ -31,13 +35,13 @@ impl ScipRig {
     }
 
     /// The scanner's clock reading at host time `host_ns`.
-    pub fn device_ms(&self, host_ns: u64) -> u32 {
+    pub(crate) fn device_ms(&self, host_ns: u64) -> u32 {
         let host_ms = (host_ns / 1_000_000) as u32;
         host_ms.wrapping_add(self.device_offset_ms) & 0xFF_FFFF
     }
 
     /// Runs both sides at host time `now_ns` until neither has anything more to say.
-    pub fn exchange(&mut self, now_ns: u64, out: &mut Vec<Exchanged>) {
+    pub(crate) fn exchange(&mut self, now_ns: u64, out: &mut Vec<Exchanged>) {
         let now = Duration::from_nanos(now_ns);
         self.emulator.set_clock(self.device_ms(now_ns));
         self.device.handle_timeout(now);
@@ -65,7 +69,7 @@ impl ScipRig {
 
     /// Hands the emulator the revolution whose step 0 was measured at host time `step0_ns`;
     /// a stream sends it at the next [`ScipRig::exchange`].
-    pub fn push_scan(
+    pub(crate) fn push_scan(
         &mut self,
         step0_ns: u64,
         ranges_mm: &[u32],
@@ -74,20 +78,23 @@ impl ScipRig {
             .push_scan(self.device_ms(step0_ns), ranges_mm, None)
     }
 
-    pub fn is_streaming(&self) -> bool {
+    pub(crate) fn is_streaming(&self) -> bool {
         self.device.phase() == scip::Phase::Streaming
     }
 }
 
 /// An Xbus host driver against an emulated MTi.
-pub struct XbusRig {
+pub(crate) struct XbusRig {
     pub device: xbus::Device,
     pub emulator: xbus::emulator::Emulator,
     scratch: Vec<u8>,
 }
 
 impl XbusRig {
-    pub fn new(options: xbus::emulator::EmulatorOptions, config: xbus::DeviceConfig) -> Self {
+    pub(crate) fn new(
+        options: xbus::emulator::EmulatorOptions,
+        config: xbus::DeviceConfig,
+    ) -> Self {
         Self {
             device: xbus::Device::new(config, Duration::ZERO),
             emulator: xbus::emulator::Emulator::new(options),
@@ -95,7 +102,7 @@ impl XbusRig {
         }
     }
 
-    pub fn exchange(&mut self, now_ns: u64, out: &mut Vec<Exchanged>) {
+    pub(crate) fn exchange(&mut self, now_ns: u64, out: &mut Vec<Exchanged>) {
         let now = Duration::from_nanos(now_ns);
         if self.device.poll_timeout().is_some_and(|t| t <= now) {
             self.device.handle_timeout(now);
@@ -123,11 +130,11 @@ impl XbusRig {
     }
 
     /// Streams `sample` if the device is measuring; it is read at the next exchange.
-    pub fn push_sample(&mut self, sample: &xbus::emulator::Sample) -> bool {
+    pub(crate) fn push_sample(&mut self, sample: &xbus::emulator::Sample) -> bool {
         self.emulator.push_sample(sample)
     }
 
-    pub fn is_measuring(&self) -> bool {
+    pub(crate) fn is_measuring(&self) -> bool {
         self.device.is_measuring()
     }
 }

@@ -10,7 +10,7 @@ use std::fmt;
 const KEPT: usize = 100_000;
 
 #[derive(Debug)]
-pub struct LatencyLog {
+pub(crate) struct LatencyLog {
     /// What is measured, "scan-to-MAVLink" say: the log line's subject.
     what: &'static str,
     micros: Vec<u32>,
@@ -29,7 +29,7 @@ pub struct LatencySummary {
 }
 
 impl LatencyLog {
-    pub fn new(what: &'static str) -> Self {
+    pub(crate) fn new(what: &'static str) -> Self {
         Self {
             what,
             micros: Vec::new(),
@@ -37,7 +37,7 @@ impl LatencyLog {
         }
     }
 
-    pub fn add(&mut self, read_ns: u64, done_ns: u64) {
+    pub(crate) fn add(&mut self, read_ns: u64, done_ns: u64) {
         let micros = u32::try_from(done_ns.saturating_sub(read_ns) / 1_000).unwrap_or(u32::MAX);
         tracing::debug!(latency_us = micros, "{} latency", self.what);
         self.total += 1;
@@ -46,7 +46,7 @@ impl LatencyLog {
         }
     }
 
-    pub fn summary(&self) -> Option<LatencySummary> {
+    pub(crate) fn summary(&self) -> Option<LatencySummary> {
         let mut sorted = self.micros.clone();
         sorted.sort_unstable();
         let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];

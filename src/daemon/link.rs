@@ -45,7 +45,7 @@ pub enum LinkError {
 
 /// A validated MAVLink connection string.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub enum LinkAddress {
+pub(crate) enum LinkAddress {
     Serial { port: String, baud: u32 },
     UdpOut { host: String, port: u16 },
     UdpIn { host: String, port: u16 },
@@ -116,7 +116,7 @@ impl fmt::Display for LinkAddress {
 /// MAVLink 2 message signing: every frame we send is signed; frames from the autopilot must be
 /// signed with the same key unless `allow_unsigned`.
 #[derive(Clone, PartialEq, Eq)]
-pub struct Signing {
+pub(crate) struct Signing {
     pub key: [u8; 32],
     pub link_id: u8,
     pub allow_unsigned: bool,
@@ -139,7 +139,7 @@ impl Signing {
 }
 
 /// A 32-byte key from 64 hex digits (surrounding whitespace ignored).
-pub fn parse_key_hex(text: &str) -> Result<[u8; 32], LinkError> {
+pub(crate) fn parse_key_hex(text: &str) -> Result<[u8; 32], LinkError> {
     decode_hex_key(text).map_err(LinkError::BadKey)
 }
 
@@ -159,7 +159,7 @@ fn decode_hex_key(text: &str) -> Result<[u8; 32], String> {
 }
 
 /// A key file holds either the 64 hex digits or the 32 raw bytes.
-pub fn read_key_file(path: &Path) -> Result<[u8; 32], LinkError> {
+pub(crate) fn read_key_file(path: &Path) -> Result<[u8; 32], LinkError> {
     let bytes = std::fs::read(path).map_err(|source| LinkError::KeyFile {
         path: path.to_path_buf(),
         source,
@@ -175,7 +175,7 @@ pub fn read_key_file(path: &Path) -> Result<[u8; 32], LinkError> {
 }
 
 /// An open MAVLink link. Share it as `Arc<Link>` between the sender and [`Link::receive_loop`].
-pub struct Link {
+pub(crate) struct Link {
     connection: AsyncConnection<MavMessage>,
     identity: Identity,
     signing: Option<SigningData>,
@@ -184,7 +184,7 @@ pub struct Link {
 }
 
 impl Link {
-    pub async fn connect(
+    pub(crate) async fn connect(
         address: &LinkAddress,
         identity: Identity,
         signing: Option<Signing>,
@@ -209,7 +209,7 @@ impl Link {
 
     /// Sends one message and returns the frame exactly as written (for `mavlink.tlog`), or
     /// `None` when there is nobody to send to yet (`udpin` before the autopilot has spoken).
-    pub async fn send(&self, message: &MavMessage) -> Result<Option<Vec<u8>>, LinkError> {
+    pub(crate) async fn send(&self, message: &MavMessage) -> Result<Option<Vec<u8>>, LinkError> {
         let mut sequence = self.sequence.lock().await;
         let header = MavHeader {
             sequence: *sequence,
@@ -236,7 +236,7 @@ impl Link {
         Ok(Some(frame))
     }
 
-    pub async fn recv(&self) -> Result<(MavHeader, MavMessage), LinkError> {
+    pub(crate) async fn recv(&self) -> Result<(MavHeader, MavMessage), LinkError> {
         self.connection
             .recv()
             .await
@@ -245,7 +245,7 @@ impl Link {
 
     /// Reads the autopilot until `cancel`: answers TIMESYNC requests stamped with `now_ns` (the
     /// clock of the estimates' `time_usec`) and hands every frame sent to `on_sent`.
-    pub async fn receive_loop(
+    pub(crate) async fn receive_loop(
         &self,
         now_ns: impl Fn() -> i64,
         mut on_sent: impl FnMut(&[u8]),

@@ -39,8 +39,8 @@ use std::fmt;
 use std::str::FromStr;
 
 /// MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY: the component id autopilots expect from an odometer.
-pub const DEFAULT_COMPONENT_ID: u8 = 197;
-pub const HEARTBEAT_RATE_HZ: f64 = 1.0;
+pub(crate) const DEFAULT_COMPONENT_ID: u8 = 197;
+pub(crate) const HEARTBEAT_RATE_HZ: f64 = 1.0;
 
 /// Which messages the autopilot gets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -57,7 +57,7 @@ pub enum Profile {
 impl Profile {
     /// Rates the autopilot fuses well: PX4 drops EV below ~30 Hz; EKF3 drops body odometry
     /// samples closer than 50 ms; AP_VisualOdom needs at least 4 Hz.
-    pub fn rate_range_hz(self) -> (f64, f64) {
+    pub(crate) fn rate_range_hz(self) -> (f64, f64) {
         match self {
             Self::Px4 => (30.0, 50.0),
             Self::Ardupilot => (10.0, 20.0),
@@ -74,7 +74,7 @@ impl Profile {
     /// whole jump of the epoch's correction, which EKF3 turns into a velocity spike of
     /// correction / interval: the delta profile keeps its steady rate, and its next slot
     /// carries the epoch.
-    pub fn epoch_spacing_s(self) -> Option<f64> {
+    pub(crate) fn epoch_spacing_s(self) -> Option<f64> {
         match self {
             Self::Px4 => Some(0.010),
             Self::ArdupilotOdometry => Some(0.020),
@@ -82,7 +82,7 @@ impl Profile {
         }
     }
 
-    pub fn default_rate_hz(self) -> f64 {
+    pub(crate) fn default_rate_hz(self) -> f64 {
         match self {
             Self::Px4 => 30.0,
             Self::Ardupilot => 15.0,
@@ -119,14 +119,14 @@ impl FromStr for Profile {
 
 /// Who we are on the MAVLink network.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Identity {
+pub(crate) struct Identity {
     pub system_id: u8,
     pub component_id: u8,
 }
 
 impl Identity {
     /// The header to send with; the link fills in the sequence number.
-    pub fn header(&self) -> MavHeader {
+    pub(crate) fn header(&self) -> MavHeader {
         MavHeader {
             system_id: u32::from(self.system_id),
             component_id: self.component_id,
@@ -192,7 +192,7 @@ impl QualityPolicy {
     }
 
     /// VISION_POSITION_DELTA confidence in percent: 0 whenever quality says "failed".
-    pub fn confidence(&self, estimate: &Estimate) -> f32 {
+    pub(crate) fn confidence(&self, estimate: &Estimate) -> f32 {
         f32::from(self.quality(estimate).max(0))
     }
 }
@@ -204,7 +204,7 @@ fn largest_sigma(covariance: &Matrix3<f64>) -> Option<f64> {
 }
 
 /// HEARTBEAT of an onboard odometer (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID).
-pub fn heartbeat(system_status: MavState) -> MavMessage {
+pub(crate) fn heartbeat(system_status: MavState) -> MavMessage {
     MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA {
         custom_mode: 0,
         mavtype: MavType::MAV_TYPE_ONBOARD_CONTROLLER,
@@ -218,7 +218,7 @@ pub fn heartbeat(system_status: MavState) -> MavMessage {
 /// What the HEARTBEAT says of the estimate: CALIBRATING before there is one and until it has
 /// converged after the start or a restart (quality 0), CRITICAL while it is failed (quality -1:
 /// a stale sensor, no odometry fused for too long), ACTIVE while it may be used.
-pub fn system_state(estimate: Option<&Estimate>, policy: &QualityPolicy) -> MavState {
+pub(crate) fn system_state(estimate: Option<&Estimate>, policy: &QualityPolicy) -> MavState {
     match estimate.map(|e| policy.quality(e)) {
         None | Some(0) => MavState::MAV_STATE_CALIBRATING,
         Some(quality) if quality < 0 => MavState::MAV_STATE_CRITICAL,
@@ -227,7 +227,7 @@ pub fn system_state(estimate: Option<&Estimate>, policy: &QualityPolicy) -> MavS
 }
 
 /// STATUSTEXT for the ground station and the autopilot's log, cut to the 50 bytes it holds.
-pub fn statustext(severity: MavSeverity, text: &str) -> MavMessage {
+pub(crate) fn statustext(severity: MavSeverity, text: &str) -> MavMessage {
     let mut end = text.len().min(STATUSTEXT_BYTES);
     while !text.is_char_boundary(end) {
         end -= 1;
@@ -260,7 +260,7 @@ fn reset_text(counter: u8, reason: Option<ResetReason>) -> MavMessage {
 /// The answer to a TIMESYNC request (`tc1 == 0`) from `requester`, stamped with our clock in
 /// ns, which must be the clock of `time_usec` in the estimate messages. `None` for a reply
 /// (`tc1 != 0`), which must not be answered or the two ends ping-pong forever.
-pub fn timesync_reply(
+pub(crate) fn timesync_reply(
     request: &apm::TIMESYNC_DATA,
     requester: &MavHeader,
     now_ns: i64,
@@ -281,7 +281,7 @@ fn time_usec(t: f64) -> u64 {
 
 /// Upper triangle (row-major) of a 6x6 whose diagonal blocks are `a` and `b`: autopilots read
 /// the variances at [0], [6], [11] and [15], [18], [20].
-pub fn upper_triangle_6x6(a: &Matrix3<f64>, b: &Matrix3<f64>) -> [f32; 21] {
+pub(crate) fn upper_triangle_6x6(a: &Matrix3<f64>, b: &Matrix3<f64>) -> [f32; 21] {
     let mut out = [0.0f32; 21];
     let mut k = 0;
     for row in 0..6 {
@@ -299,7 +299,7 @@ pub fn upper_triangle_6x6(a: &Matrix3<f64>, b: &Matrix3<f64>) -> [f32; 21] {
 
 /// ODOMETRY in LOCAL_FRD (our NED, whose heading the autopilot treats as arbitrary) with child
 /// frame BODY_FRD: pose, body velocity, body rates, covariances, reset counter and quality.
-pub fn odometry(estimate: &Estimate, quality: i8) -> MavMessage {
+pub(crate) fn odometry(estimate: &Estimate, quality: i8) -> MavMessage {
     let p = estimate.position.map(|x| x as f32);
     let q = estimate.attitude.quaternion();
     let v = estimate.body_velocity().map(|x| x as f32);
@@ -336,7 +336,7 @@ pub fn odometry(estimate: &Estimate, quality: i8) -> MavMessage {
 /// (previous body -> current body, in previous body axes, which is what integrated gyro rates
 /// give) and the displacement in the current body frame. `None` when time does not advance or
 /// the filter was reset in between (a delta across a jump would be fused as real motion).
-pub fn position_delta(
+pub(crate) fn position_delta(
     previous: &Estimate,
     current: &Estimate,
     confidence: f32,
@@ -365,13 +365,13 @@ pub fn position_delta(
 
 /// Fires at most once per period; a late call does not cause a burst of catch-up sends.
 #[derive(Debug, Clone, PartialEq)]
-pub struct RateLimiter {
+pub(crate) struct RateLimiter {
     period_s: f64,
     next_s: Option<f64>,
 }
 
 impl RateLimiter {
-    pub fn new(rate_hz: f64) -> Self {
+    pub(crate) fn new(rate_hz: f64) -> Self {
         Self {
             period_s: 1.0 / rate_hz,
             next_s: None,
@@ -380,11 +380,11 @@ impl RateLimiter {
 
     /// A message went out at `now` outside the schedule: the next slot is `periods` periods
     /// later, so the out-of-slot message takes the place of a slot instead of adding to the rate.
-    pub fn restart(&mut self, now: f64, periods: f64) {
+    pub(crate) fn restart(&mut self, now: f64, periods: f64) {
         self.next_s = Some(now + periods * self.period_s);
     }
 
-    pub fn ready(&mut self, now: f64) -> bool {
+    pub(crate) fn ready(&mut self, now: f64) -> bool {
         match self.next_s {
             Some(next) if now < next => false,
             Some(next) => {
@@ -411,7 +411,7 @@ impl RateLimiter {
 /// have to wait for the spacing. Half a period more puts the next epoch mid-way between two
 /// slots, far enough from both, and keeps the average rate at the steady one (the epoch's
 /// message stands for half a slot).
-pub const EPOCH_RESTART_PERIODS: f64 = 1.5;
+pub(crate) const EPOCH_RESTART_PERIODS: f64 = 1.5;
 
 /// What to send for each estimate and when the heartbeat is due, for one profile. Decided on
 /// estimate time alone, so a replay sends the messages the flight sent.
@@ -421,7 +421,7 @@ pub const EPOCH_RESTART_PERIODS: f64 = 1.5;
 /// is too recent, the first estimate far enough from it goes instead, out of its slot. Either
 /// way the steady schedule restarts [`EPOCH_RESTART_PERIODS`] periods after that message.
 #[derive(Debug, Clone)]
-pub struct MavlinkStream {
+pub(crate) struct MavlinkStream {
     profile: Profile,
     policy: QualityPolicy,
     estimates: RateLimiter,
@@ -436,7 +436,7 @@ pub struct MavlinkStream {
 }
 
 impl MavlinkStream {
-    pub fn new(profile: Profile, rate_hz: f64, policy: QualityPolicy) -> Self {
+    pub(crate) fn new(profile: Profile, rate_hz: f64, policy: QualityPolicy) -> Self {
         Self {
             profile,
             policy,
@@ -451,12 +451,12 @@ impl MavlinkStream {
     }
 
     /// The HEARTBEAT state of the newest estimate.
-    pub fn system_state(&self) -> MavState {
+    pub(crate) fn system_state(&self) -> MavState {
         self.state
     }
 
     /// A STATUSTEXT the newest estimates call for (a reset), once.
-    pub fn take_statustext(&mut self) -> Option<MavMessage> {
+    pub(crate) fn take_statustext(&mut self) -> Option<MavMessage> {
         self.pending_text.take()
     }
 
@@ -468,21 +468,17 @@ impl MavlinkStream {
         }
     }
 
-    pub fn profile(&self) -> Profile {
-        self.profile
-    }
-
-    pub fn policy(&self) -> QualityPolicy {
+    pub(crate) fn policy(&self) -> QualityPolicy {
         self.policy
     }
 
-    pub fn heartbeat_due(&mut self, now: f64) -> Option<MavMessage> {
+    pub(crate) fn heartbeat_due(&mut self, now: f64) -> Option<MavMessage> {
         self.heartbeats.ready(now).then(|| heartbeat(self.state))
     }
 
     /// The message for this estimate if one is due at `now`. The ArduPilot delta profile sends
     /// nothing for the first estimate (and after a reset): it needs a previous one.
-    pub fn on_estimate(&mut self, now: f64, estimate: &Estimate) -> Option<MavMessage> {
+    pub(crate) fn on_estimate(&mut self, now: f64, estimate: &Estimate) -> Option<MavMessage> {
         self.observe(estimate);
         if self.epoch_waiting && self.spaced_from_last(estimate.t) {
             self.epoch_waiting = false;
@@ -495,7 +491,7 @@ impl MavlinkStream {
 
     /// The message for the estimate an odometry epoch published, if the profile sends epochs
     /// early and the previous message is not too recent; otherwise a later estimate carries it.
-    pub fn on_epoch_estimate(&mut self, estimate: &Estimate) -> Option<MavMessage> {
+    pub(crate) fn on_epoch_estimate(&mut self, estimate: &Estimate) -> Option<MavMessage> {
         self.observe(estimate);
         self.profile.epoch_spacing_s()?;
         if !self.spaced_from_last(estimate.t) {

@@ -26,7 +26,7 @@ const HEARTBEAT_POLL: Duration = Duration::from_millis(100);
 
 /// One message for the autopilot.
 #[derive(Debug, Clone)]
-pub struct Outgoing {
+pub(crate) struct Outgoing {
     pub message: MavMessage,
     /// Host ns at which the scan chunk that closed the epoch this message is the first to
     /// carry was read; `None` for a message carrying no new epoch.
@@ -38,13 +38,13 @@ pub struct Outgoing {
 const SILENT_AFTER_S: f64 = 1.0;
 
 /// Messages waiting for the link: a second of ODOMETRY at 50 Hz.
-pub const QUEUE_MESSAGES: usize = 64;
+pub(crate) const QUEUE_MESSAGES: usize = 64;
 
 /// The HEARTBEAT state the fusion thread decides and the MAVLink task sends at 1 Hz.
-pub type SharedState = Arc<Mutex<MavState>>;
+pub(crate) type SharedState = Arc<Mutex<MavState>>;
 
 /// The fusion thread's end: decides with the profile's stream and hands over without waiting.
-pub struct Feed {
+pub(crate) struct Feed {
     stream: MavlinkStream,
     messages: mpsc::Sender<Outgoing>,
     state: SharedState,
@@ -55,7 +55,7 @@ pub struct Feed {
 }
 
 impl Feed {
-    pub fn new(
+    pub(crate) fn new(
         stream: MavlinkStream,
         messages: mpsc::Sender<Outgoing>,
         state: SharedState,
@@ -78,7 +78,7 @@ impl Feed {
     }
 
     /// Messages lost because the link did not keep up.
-    pub fn dropped(&self) -> u64 {
+    pub(crate) fn dropped(&self) -> u64 {
         self.dropped
     }
 
@@ -150,7 +150,7 @@ impl Autopilot for Feed {
 /// for `mavlink.tlog` (stamped by the caller with wall-clock time); `latency` gets one entry
 /// per epoch-carrying message written. A send error ends the task: the caller decides whether
 /// to reconnect.
-pub async fn run(
+pub(crate) async fn run(
     link: &Link,
     mut messages: mpsc::Receiver<Outgoing>,
     now_ns: impl Fn() -> u64,

@@ -7,7 +7,7 @@ use super::pipeline::{EpochCounts, Outcome};
 use std::fmt;
 
 /// A warning about one outcome repeats at most this often, s.
-pub const WARN_EVERY_S: f64 = 10.0;
+pub(crate) const WARN_EVERY_S: f64 = 10.0;
 
 /// Epochs per outcome.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -17,7 +17,7 @@ pub struct OutcomeCounts {
 }
 
 impl OutcomeCounts {
-    pub fn add(&mut self, epoch: &EpochCounts) {
+    pub(crate) fn add(&mut self, epoch: &EpochCounts) {
         self.counts[index(epoch.outcome)] += 1;
         if let Some(reason) = &epoch.failure {
             self.last_failure = Some(reason.clone());
@@ -66,14 +66,14 @@ impl fmt::Display for OutcomeCounts {
 
 /// Decides the warnings about failed and under-determined epochs.
 #[derive(Debug, Default)]
-pub struct OutcomeWarnings {
+pub(crate) struct OutcomeWarnings {
     /// Per warned outcome: when it was last warned of, and the epochs since.
     warned: [(Option<f64>, u64); Outcome::ALL.len()],
 }
 
 impl OutcomeWarnings {
     /// The warning an epoch ending at sensor time `now_s` calls for, if any.
-    pub fn observe(&mut self, epoch: &EpochCounts, now_s: f64) -> Option<String> {
+    pub(crate) fn observe(&mut self, epoch: &EpochCounts, now_s: f64) -> Option<String> {
         if !matches!(epoch.outcome, Outcome::Failed | Outcome::UnderDetermined) {
             return None;
         }

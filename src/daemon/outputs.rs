@@ -12,13 +12,13 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-pub const TRAJECTORY_FILE: &str = "trajectory.tum";
-pub const EPOCHS_FILE: &str = "epochs.jsonl";
-pub const TLOG_FILE: &str = "mavlink.tlog";
+pub(crate) const TRAJECTORY_FILE: &str = "trajectory.tum";
+pub(crate) const EPOCHS_FILE: &str = "epochs.jsonl";
+pub(crate) const TLOG_FILE: &str = "mavlink.tlog";
 /// Written by `replay --out` when the recording carries `/truth`.
-pub const TRUTH_FILE: &str = "truth.tum";
+pub(crate) const TRUTH_FILE: &str = "truth.tum";
 /// Drawn by `replay --report` beside the other three.
-pub const REPORT_FILE: &str = "report.html";
+pub(crate) const REPORT_FILE: &str = "report.html";
 
 #[derive(Debug, thiserror::Error)]
 pub enum OutputError {
@@ -69,7 +69,7 @@ impl NamedWriter {
 }
 
 /// One TUM line: `t x y z qx qy qz qw`, position NED, attitude body->NED.
-pub fn tum_line(estimate: &Estimate) -> String {
+pub(crate) fn tum_line(estimate: &Estimate) -> String {
     tum_record(estimate.t, &estimate.position, &estimate.attitude)
 }
 
@@ -84,7 +84,7 @@ fn tum_record(t: f64, p: &Vector3<f64>, attitude: &UnitQuaternion<f64>) -> Strin
 /// `truth.tum` beside `trajectory.tum`, in the same format, for evo (`evo_ape tum truth.tum
 /// trajectory.tum --align`): the simulator's truth is in its scene's frame, which the alignment
 /// takes out.
-pub fn write_truth(dir: &Path, truth: &[TruthSample]) -> Result<(), OutputError> {
+pub(crate) fn write_truth(dir: &Path, truth: &[TruthSample]) -> Result<(), OutputError> {
     let mut file = NamedWriter::create(dir.join(TRUTH_FILE))?;
     for sample in truth {
         file.write_all(tum_record(sample.t, &sample.p, &sample.q).as_bytes())?;
@@ -93,7 +93,7 @@ pub fn write_truth(dir: &Path, truth: &[TruthSample]) -> Result<(), OutputError>
 }
 
 /// `mavlink.tlog` framing: each message behind the big-endian microseconds of its send time.
-pub fn tlog_record(time_us: u64, frame: &[u8]) -> Vec<u8> {
+pub(crate) fn tlog_record(time_us: u64, frame: &[u8]) -> Vec<u8> {
     let mut record = Vec::with_capacity(8 + frame.len());
     record.extend_from_slice(&time_us.to_be_bytes());
     record.extend_from_slice(frame);
@@ -101,7 +101,7 @@ pub fn tlog_record(time_us: u64, frame: &[u8]) -> Vec<u8> {
 }
 
 /// The three output files of one run.
-pub struct Outputs {
+pub(crate) struct Outputs {
     trajectory: NamedWriter,
     epochs: NamedWriter,
     tlog: NamedWriter,
@@ -109,7 +109,7 @@ pub struct Outputs {
 
 impl Outputs {
     /// Creates `dir` if needed and the three files in it, replacing earlier ones.
-    pub fn create(dir: &Path) -> Result<Self, OutputError> {
+    pub(crate) fn create(dir: &Path) -> Result<Self, OutputError> {
         std::fs::create_dir_all(dir).map_err(|source| OutputError::CreateDir {
             path: dir.to_path_buf(),
             source,
@@ -121,14 +121,14 @@ impl Outputs {
         })
     }
 
-    pub fn trajectory(&mut self, estimate: &Estimate) -> Result<(), OutputError> {
+    pub(crate) fn trajectory(&mut self, estimate: &Estimate) -> Result<(), OutputError> {
         self.trajectory.write_all(tum_line(estimate).as_bytes())
     }
 
     /// One odometry epoch as one JSON line. The record's shape belongs to the fusion (time,
     /// planes seen/matched/used, excluded ids, statistics, thresholds, MDB, motion, covariances,
     /// status); any `Serialize` value, including a `serde_json::Value`, is accepted.
-    pub fn epoch<T: Serialize>(&mut self, record: &T) -> Result<(), OutputError> {
+    pub(crate) fn epoch<T: Serialize>(&mut self, record: &T) -> Result<(), OutputError> {
         let mut line = serde_json::to_vec(record).map_err(|source| OutputError::Serialise {
             path: self.epochs.path.clone(),
             source,
@@ -139,18 +139,18 @@ impl Outputs {
 
     /// One MAVLink frame exactly as sent. `time_us` is wall-clock microseconds since the UNIX
     /// epoch, which is what MAVProxy, Mission Planner and pymavlink read from a tlog.
-    pub fn mavlink(&mut self, time_us: u64, frame: &[u8]) -> Result<(), OutputError> {
+    pub(crate) fn mavlink(&mut self, time_us: u64, frame: &[u8]) -> Result<(), OutputError> {
         self.tlog.write_all(&tlog_record(time_us, frame))
     }
 
     /// Flushes all three files.
-    pub fn flush(&mut self) -> Result<(), OutputError> {
+    pub(crate) fn flush(&mut self) -> Result<(), OutputError> {
         self.trajectory.flush()?;
         self.epochs.flush()?;
         self.tlog.flush()
     }
 
-    pub fn finish(mut self) -> Result<(), OutputError> {
+    pub(crate) fn finish(mut self) -> Result<(), OutputError> {
         self.flush()
     }
 }

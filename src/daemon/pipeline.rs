@@ -15,7 +15,7 @@ use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use serde::Serialize;
 
 /// Silence after which a sensor is declared stale: ten scans of the slowest supported scanner.
-pub const STALE_AFTER_NS: u64 = 1_000_000_000;
+pub(crate) const STALE_AFTER_NS: u64 = 1_000_000_000;
 
 /// One chunk of bytes read from (`Rx`) or written to (`Tx`) sensor number `sensor`, stamped with
 /// host monotonic ns since the daemon started, with the readings its driver decoded from it.
@@ -63,14 +63,14 @@ impl SensorSpec {
 
 /// One sensor of a configuration.
 #[derive(Debug, Clone, Copy)]
-pub enum Configured<'a> {
+pub(crate) enum Configured<'a> {
     Scanner(&'a ScannerConfig),
     Imu(&'a ImuConfig),
 }
 
 /// The configuration's sensors in the one order that numbers them ([`Chunk::sensor`]):
 /// scanners in configuration order, then the IMU. A scanner's number is its scanner index.
-pub fn configured_sensors(config: &Config) -> impl Iterator<Item = Configured<'_>> {
+pub(crate) fn configured_sensors(config: &Config) -> impl Iterator<Item = Configured<'_>> {
     let scanners = config.scanners.iter().map(Configured::Scanner);
     scanners.chain(std::iter::once(Configured::Imu(&config.imu)))
 }
@@ -122,7 +122,7 @@ pub enum Outcome {
 }
 
 impl Outcome {
-    pub const ALL: [Self; 7] = [
+    pub(crate) const ALL: [Self; 7] = [
         Self::Fused,
         Self::Reference,
         Self::UnderDetermined,
@@ -133,7 +133,7 @@ impl Outcome {
     ];
 
     /// The outcome and its reason, as a user reads it.
-    pub fn describe(self) -> &'static str {
+    pub(crate) fn describe(self) -> &'static str {
         match self {
             Self::Reference => {
                 "reference only (the first, before the filter aligned, or after a gap)"
@@ -207,7 +207,7 @@ impl<E: Estimator> Pipeline<E> {
     }
 
     /// Adds a sensor found in a recording without a configuration.
-    pub fn with_sensor(mut self, spec: SensorSpec) -> Self {
+    pub(crate) fn with_sensor(mut self, spec: SensorSpec) -> Self {
         self.timings.push(SensorTiming::new(&spec));
         self.specs.push(spec);
         self.last_rx_ns.push(None);
@@ -215,12 +215,12 @@ impl<E: Estimator> Pipeline<E> {
         self
     }
 
-    pub fn specs(&self) -> &[SensorSpec] {
+    pub(crate) fn specs(&self) -> &[SensorSpec] {
         &self.specs
     }
 
     /// Number of the sensor called `name`, if configured.
-    pub fn sensor_named(&self, name: &str) -> Option<usize> {
+    pub(crate) fn sensor_named(&self, name: &str) -> Option<usize> {
         self.specs.iter().position(|s| s.name() == name)
     }
 
@@ -284,24 +284,25 @@ impl<E: Estimator> Pipeline<E> {
         }
     }
 
-    pub fn is_stale(&self, sensor: usize) -> bool {
+    pub(crate) fn is_stale(&self, sensor: usize) -> bool {
         self.stale[sensor]
     }
 
     /// Decoder health per sensor, in sensor order.
-    pub fn decode_counts(&self) -> Vec<DecodeCounts> {
+    pub(crate) fn decode_counts(&self) -> Vec<DecodeCounts> {
         self.timings.iter().map(SensorTiming::counts).collect()
     }
 
-    pub fn estimator(&self) -> &E {
+    #[cfg(test)]
+    pub(crate) fn estimator(&self) -> &E {
         &self.estimator
     }
 
-    pub fn estimator_mut(&mut self) -> &mut E {
+    pub(crate) fn estimator_mut(&mut self) -> &mut E {
         &mut self.estimator
     }
 
-    pub fn into_estimator(self) -> E {
+    pub(crate) fn into_estimator(self) -> E {
         self.estimator
     }
 }

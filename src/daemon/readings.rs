@@ -30,23 +30,23 @@ pub enum Reading {
 impl Reading {
     /// The driver event as a reading, if it is a data event (the handshake's are the sensor
     /// task's business).
-    pub fn from_scanner(event: scip::Event) -> Option<Self> {
+    pub(crate) fn from_scanner(event: scip::Event) -> Option<Self> {
         event.is_data().then_some(Self::Scanner(event))
     }
 
-    pub fn from_imu(event: xbus::Event) -> Option<Self> {
+    pub(crate) fn from_imu(event: xbus::Event) -> Option<Self> {
         event.is_data().then_some(Self::Imu(event))
     }
 }
 
 /// The passive half of a sensor's driver, for replay: bytes in, readings out.
-pub enum Receiver {
+pub(crate) enum Receiver {
     Scanner(scip::Receiver),
     Imu(xbus::Receiver),
 }
 
 impl Receiver {
-    pub fn new(encoding: Encoding) -> Self {
+    pub(crate) fn new(encoding: Encoding) -> Self {
         match encoding {
             Encoding::Scip2 => Self::Scanner(scip::Receiver::new()),
             // The fusion times samples by the raw SampleTimeFine (the clock estimator unwraps
@@ -59,7 +59,7 @@ impl Receiver {
     }
 
     /// Decodes bytes read at host time `log_time_ns`, appending the readings they completed.
-    pub fn decode(&mut self, log_time_ns: u64, bytes: &[u8], out: &mut Vec<Reading>) {
+    pub(crate) fn decode(&mut self, log_time_ns: u64, bytes: &[u8], out: &mut Vec<Reading>) {
         let now = Duration::from_nanos(log_time_ns);
         match self {
             Self::Scanner(receiver) => {
@@ -95,7 +95,7 @@ impl Receivers {
     }
 
     /// The next sensor number speaks `encoding`.
-    pub fn add(&mut self, encoding: Encoding) {
+    pub(crate) fn add(&mut self, encoding: Encoding) {
         self.receivers.push((encoding, Receiver::new(encoding)));
     }
 
@@ -119,7 +119,7 @@ impl Receivers {
 
 /// What the readings turned into.
 #[derive(Debug, Clone, PartialEq)]
-pub enum SensorEvent {
+pub(crate) enum SensorEvent {
     /// A scanner reported its geometry (`PP`), before its first scan and after each reconnect.
     Geometry {
         sensor: usize,
@@ -148,13 +148,13 @@ pub struct DecodeCounts {
 
 /// Turns one sensor's readings into host-timed measurements.
 #[derive(Debug)]
-pub enum SensorTiming {
+pub(crate) enum SensorTiming {
     Scanner(ScannerTiming),
     Imu(ImuTiming),
 }
 
 impl SensorTiming {
-    pub fn new(spec: &SensorSpec) -> Self {
+    pub(crate) fn new(spec: &SensorSpec) -> Self {
         match *spec {
             SensorSpec::Scanner { index, .. } => Self::Scanner(ScannerTiming::new(index)),
             SensorSpec::Imu {
@@ -166,7 +166,7 @@ impl SensorTiming {
     }
 
     /// Counts one chunk of received bytes.
-    pub fn received(&mut self, bytes: usize) {
+    pub(crate) fn received(&mut self, bytes: usize) {
         let counts = match self {
             Self::Scanner(t) => &mut t.counts,
             Self::Imu(t) => &mut t.counts,
@@ -176,7 +176,12 @@ impl SensorTiming {
     }
 
     /// Times one reading read at host time `log_time_ns`, appending what it completed.
-    pub fn take(&mut self, log_time_ns: u64, reading: &Reading, events: &mut Vec<SensorEvent>) {
+    pub(crate) fn take(
+        &mut self,
+        log_time_ns: u64,
+        reading: &Reading,
+        events: &mut Vec<SensorEvent>,
+    ) {
         let received = host_seconds(log_time_ns);
         match (self, reading) {
             (Self::Scanner(t), Reading::Scanner(event)) => t.take(received, event, events),
@@ -188,7 +193,7 @@ impl SensorTiming {
         }
     }
 
-    pub fn counts(&self) -> DecodeCounts {
+    pub(crate) fn counts(&self) -> DecodeCounts {
         match self {
             Self::Scanner(t) => DecodeCounts {
                 clock_restarts: t.clock.restarts(),
@@ -244,7 +249,7 @@ fn host_seconds(log_time_ns: u64) -> Option<f64> {
 
 /// SCIP 2.0 scanner: `PP` geometry, `TM1` clock samples, scans.
 #[derive(Debug)]
-pub struct ScannerTiming {
+pub(crate) struct ScannerTiming {
     index: usize,
     geometry: Option<ScannerGeometry>,
     clock: DeviceClock,
@@ -309,7 +314,7 @@ impl ScannerTiming {
 }
 
 /// The sensor geometry a `PP` reply describes.
-pub fn geometry_from(parameters: &scip::Parameters) -> ScannerGeometry {
+pub(crate) fn geometry_from(parameters: &scip::Parameters) -> ScannerGeometry {
     ScannerGeometry {
         ares: parameters.angular_resolution,
         amin: u32::from(parameters.first_step),
@@ -323,7 +328,7 @@ pub fn geometry_from(parameters: &scip::Parameters) -> ScannerGeometry {
 
 /// Xsens Xbus IMU: product code, output configuration acknowledgement, MTData2 samples.
 #[derive(Debug)]
-pub struct ImuTiming {
+pub(crate) struct ImuTiming {
     clock: DeviceClock,
     modulus: u64,
     output_interval_s: f64,

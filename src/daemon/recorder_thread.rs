@@ -12,11 +12,11 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 /// Chunks that can wait for the disk: at 1 kHz of IMU frames plus 40 Hz scans, seconds' worth.
-pub const QUEUE_CHUNKS: usize = 8192;
+pub(crate) const QUEUE_CHUNKS: usize = 8192;
 
 /// One chunk of device bytes on its way to the recording.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct Tap {
+pub(crate) struct Tap {
     pub sensor: Arc<str>,
     pub encoding: Encoding,
     pub direction: Direction,
@@ -26,14 +26,14 @@ pub struct Tap {
 
 /// Cloneable handle the fusion thread records through.
 #[derive(Debug, Clone)]
-pub struct RecorderHandle {
+pub(crate) struct RecorderHandle {
     queue: SyncSender<Tap>,
     dropped: Arc<AtomicU64>,
 }
 
 impl RecorderHandle {
     /// Queues a chunk; never blocks. Returns false when it had to be dropped.
-    pub fn record(&self, tap: Tap) -> bool {
+    pub(crate) fn record(&self, tap: Tap) -> bool {
         match self.queue.try_send(tap) {
             Ok(()) => true,
             Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
@@ -44,7 +44,7 @@ impl RecorderHandle {
     }
 
     /// Chunks dropped so far because the disk could not keep up (or the recorder had stopped).
-    pub fn dropped(&self) -> u64 {
+    pub(crate) fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
     }
 }
@@ -58,7 +58,7 @@ pub struct RecorderSummary {
 
 /// Starts the thread. It ends, finishing the file, when every handle has been dropped; join it
 /// for the summary or the first write error.
-pub fn spawn<W: Write + Seek + Send + 'static>(
+pub(crate) fn spawn<W: Write + Seek + Send + 'static>(
     mut recorder: Recorder<W>,
     flush_interval: Duration,
 ) -> (

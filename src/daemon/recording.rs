@@ -24,10 +24,10 @@ use std::path::{Path, PathBuf};
 
 pub const CONFIG_METADATA_NAME: &str = "ladar-odometer.config";
 pub const CONFIG_METADATA_KEY: &str = "toml";
-pub const TRUTH_TOPIC: &str = "/truth";
-pub const TRUTH_ENCODING: &str = "json";
+pub(crate) const TRUTH_TOPIC: &str = "/truth";
+pub(crate) const TRUTH_ENCODING: &str = "json";
 /// Sensor name given to the bytes of a raw port dump.
-pub const RAW_DUMP_SENSOR: &str = "raw";
+pub(crate) const RAW_DUMP_SENSOR: &str = "raw";
 const RAW_DUMP_CHUNK: usize = 4096;
 /// How much of a raw dump is looked at to decide what it is.
 const SNIFF_BYTES: usize = 64 * 1024;
@@ -41,7 +41,7 @@ pub enum Direction {
 }
 
 impl Direction {
-    pub fn as_str(self) -> &'static str {
+    pub(crate) fn as_str(self) -> &'static str {
         match self {
             Self::Rx => "rx",
             Self::Tx => "tx",
@@ -154,7 +154,7 @@ impl TruthJson {
 /// Writes a recording. Channels are created on first use. Dropping it finishes the file (the
 /// MCAP writer's own drop does), so an orderly shutdown after SIGINT keeps every byte; call
 /// [`Recorder::flush`] about once a second so that a crash or power cut loses at most that.
-pub struct Recorder<W: Write + Seek = BufWriter<File>> {
+pub(crate) struct Recorder<W: Write + Seek = BufWriter<File>> {
     writer: Writer<W>,
     channels: HashMap<(String, Direction), u16>,
     truth_channel: Option<u16>,
@@ -162,7 +162,7 @@ pub struct Recorder<W: Write + Seek = BufWriter<File>> {
 }
 
 impl Recorder<BufWriter<File>> {
-    pub fn create(path: &Path, config_toml: &str) -> Result<Self, RecordingError> {
+    pub(crate) fn create(path: &Path, config_toml: &str) -> Result<Self, RecordingError> {
         let file = File::create(path).map_err(|source| RecordingError::Create {
             path: path.to_path_buf(),
             source,
@@ -172,7 +172,7 @@ impl Recorder<BufWriter<File>> {
 }
 
 impl<W: Write + Seek> Recorder<W> {
-    pub fn new(out: W, config_toml: &str) -> Result<Self, RecordingError> {
+    pub(crate) fn new(out: W, config_toml: &str) -> Result<Self, RecordingError> {
         let mut writer = WriteOptions::new()
             .compression(None)
             .profile("")
@@ -190,7 +190,7 @@ impl<W: Write + Seek> Recorder<W> {
     }
 
     /// Records one chunk of bytes read from (`Rx`) or written to (`Tx`) a device.
-    pub fn bytes(
+    pub(crate) fn bytes(
         &mut self,
         sensor: &str,
         encoding: Encoding,
@@ -214,7 +214,11 @@ impl<W: Write + Seek> Recorder<W> {
     }
 
     /// Records the simulator's ground truth at `log_time_ns`.
-    pub fn truth(&mut self, log_time_ns: u64, sample: &TruthSample) -> Result<(), RecordingError> {
+    pub(crate) fn truth(
+        &mut self,
+        log_time_ns: u64,
+        sample: &TruthSample,
+    ) -> Result<(), RecordingError> {
         let channel_id = match self.truth_channel {
             Some(id) => id,
             None => {
@@ -251,13 +255,13 @@ impl<W: Write + Seek> Recorder<W> {
 
     /// Closes the current MCAP chunk and flushes it to the OS: everything recorded so far
     /// survives a crash and is readable with [`ReadMode::Tolerant`].
-    pub fn flush(&mut self) -> Result<(), RecordingError> {
+    pub(crate) fn flush(&mut self) -> Result<(), RecordingError> {
         self.writer.flush()?;
         Ok(())
     }
 
     /// Writes the summary and footer and hands back the stream (to `sync_all` a file, say).
-    pub fn finish(mut self) -> Result<W, RecordingError> {
+    pub(crate) fn finish(mut self) -> Result<W, RecordingError> {
         self.writer.finish()?;
         Ok(self.writer.into_inner())
     }
@@ -335,7 +339,7 @@ impl Recording {
     }
 
     /// `path` only names the source in errors.
-    pub fn parse(bytes: &[u8], path: &Path, mode: ReadMode) -> Result<Self, RecordingError> {
+    pub(crate) fn parse(bytes: &[u8], path: &Path, mode: ReadMode) -> Result<Self, RecordingError> {
         if bytes.starts_with(mcap::MAGIC) {
             return McapParser::new(path, mode).parse(bytes);
         }
@@ -367,7 +371,7 @@ const MAX_STREAMED_RECORD: u64 = 256 << 20;
 
 /// Reads a recording message by message in file order, holding at most one MCAP chunk in
 /// memory, so that a long flight replays in a few megabytes.
-pub struct RecordingReader<'p> {
+pub(crate) struct RecordingReader<'p> {
     input: BufReader<File>,
     parser: McapParser<'p>,
     format: Format,
@@ -380,7 +384,7 @@ pub struct RecordingReader<'p> {
 }
 
 impl<'p> RecordingReader<'p> {
-    pub fn open(path: &'p Path, mode: ReadMode) -> Result<Self, RecordingError> {
+    pub(crate) fn open(path: &'p Path, mode: ReadMode) -> Result<Self, RecordingError> {
         let open_error = |source| RecordingError::Open {
             path: path.to_path_buf(),
             source,
@@ -422,27 +426,27 @@ impl<'p> RecordingReader<'p> {
         Ok(reader)
     }
 
-    pub fn format(&self) -> Format {
+    pub(crate) fn format(&self) -> Format {
         self.format
     }
 
     /// The configuration the recording was made with, if it says.
-    pub fn config_toml(&self) -> Option<&str> {
+    pub(crate) fn config_toml(&self) -> Option<&str> {
         self.parser.config_toml.as_deref()
     }
 
     /// Bytes read so far and the file's length, for progress.
-    pub fn position(&self) -> (u64, u64) {
+    pub(crate) fn position(&self) -> (u64, u64) {
         (self.offset.min(self.length), self.length)
     }
 
     /// Set once a tolerant read met damage.
-    pub fn loss(&self) -> Option<&Loss> {
+    pub(crate) fn loss(&self) -> Option<&Loss> {
         self.loss.as_ref()
     }
 
     /// `/truth` samples read so far, in `log_time` order once the file is read.
-    pub fn take_truth(&mut self) -> Vec<TruthSample> {
+    pub(crate) fn take_truth(&mut self) -> Vec<TruthSample> {
         self.parser.truth.sort_by_key(|(log_time, _)| *log_time);
         std::mem::take(&mut self.parser.truth)
             .into_iter()
@@ -451,7 +455,7 @@ impl<'p> RecordingReader<'p> {
     }
 
     /// The next device message in file order, `None` at the end.
-    pub fn next_message(&mut self) -> Result<Option<RecordedMessage>, RecordingError> {
+    pub(crate) fn next_message(&mut self) -> Result<Option<RecordedMessage>, RecordingError> {
         loop {
             if let Some(message) = self.pending.pop_front() {
                 return Ok(Some(message));
@@ -857,7 +861,7 @@ fn split_topic(topic: &str) -> Option<(String, Direction)> {
 
 /// Decides whether the start of a raw dump is Xbus (at least two checksum-valid frames) or
 /// SCIP 2.0 (text: printable ASCII and line feeds, with the blank line that ends a response).
-pub fn sniff_raw_dump(bytes: &[u8]) -> Option<Encoding> {
+pub(crate) fn sniff_raw_dump(bytes: &[u8]) -> Option<Encoding> {
     let head = &bytes[..bytes.len().min(SNIFF_BYTES)];
     if count_xbus_frames(head) >= 2 {
         return Some(Encoding::Xbus);

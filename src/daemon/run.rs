@@ -232,7 +232,7 @@ where
 }
 
 /// How to reach each sensor, numbered as [`sensor_specs`] numbers them.
-pub fn sensor_links(config: &Config) -> Vec<SensorLink> {
+pub(crate) fn sensor_links(config: &Config) -> Vec<SensorLink> {
     configured_sensors(config)
         .enumerate()
         .map(|(index, sensor)| match sensor {

@@ -28,14 +28,14 @@ const STOP_GRACE: Duration = Duration::from_millis(300);
 
 /// Which driver a sensor speaks.
 #[derive(Debug, Clone)]
-pub enum Driver {
+pub(crate) enum Driver {
     Scip(scip::DeviceConfig),
     Xbus(xbus::DeviceConfig),
 }
 
 /// Everything a sensor task needs.
 #[derive(Debug, Clone)]
-pub struct SensorLink {
+pub(crate) struct SensorLink {
     /// The [`Chunk::sensor`] number.
     pub index: usize,
     pub name: String,
@@ -46,16 +46,16 @@ pub struct SensorLink {
 /// Host monotonic clock shared by every task: ns since the daemon started, never 0 (0 marks an
 /// untimed raw dump).
 #[derive(Debug, Clone, Copy)]
-pub struct HostClock(Instant);
+pub(crate) struct HostClock(Instant);
 
 impl HostClock {
-    pub fn start() -> Self {
+    pub(crate) fn start() -> Self {
         Self(Instant::now())
     }
-    pub fn now_ns(&self) -> u64 {
+    pub(crate) fn now_ns(&self) -> u64 {
         (self.0.elapsed().as_nanos() as u64).max(1)
     }
-    pub fn now(&self) -> Duration {
+    pub(crate) fn now(&self) -> Duration {
         Duration::from_nanos(self.now_ns())
     }
 }
@@ -66,12 +66,12 @@ impl<T: AsyncRead + AsyncWrite + Send + Unpin> Port for T {}
 /// How long `run` waits at start for serial devices that do not exist yet: on a Pi the USB
 /// devices may enumerate after the service starts. Within the unit's TimeoutStartSec (30 s),
 /// and long enough that a slow enumeration does not use up StartLimitBurst with quick failures.
-pub const DEVICE_WAIT: Duration = Duration::from_secs(20);
+pub(crate) const DEVICE_WAIT: Duration = Duration::from_secs(20);
 const DEVICE_POLL: Duration = Duration::from_millis(250);
 
 /// Why a port cannot be used.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct PortProblem {
+pub(crate) struct PortProblem {
     /// The device does not exist (yet): worth waiting for at start.
     pub missing: bool,
     pub message: String,
@@ -81,7 +81,7 @@ pub struct PortProblem {
 /// yet (each is logged once, and named in the systemd status); any other problem, or a device
 /// still missing then, is the error. A typo in the configuration thus still stops the start,
 /// while a port that comes and goes later is retried by its task. Returns early on `cancel`.
-pub async fn wait_for_ports(
+pub(crate) async fn wait_for_ports(
     links: &[SensorLink],
     patience: Duration,
     cancel: &CancellationToken,
@@ -121,7 +121,7 @@ pub async fn wait_for_ports(
 }
 
 /// Why a port cannot be used at all, right now.
-pub fn check_port(name: &str, connection: &SensorConnection) -> Result<(), PortProblem> {
+pub(crate) fn check_port(name: &str, connection: &SensorConnection) -> Result<(), PortProblem> {
     let SensorConnection::Serial { path, .. } = connection else {
         return Ok(());
     };
@@ -191,7 +191,7 @@ enum LinkState {
 }
 
 /// Runs until `cancel`. `streaming` is set while the device streams, for readiness.
-pub async fn run(
+pub(crate) async fn run(
     link: SensorLink,
     queue: Arc<ChunkQueue>,
     clock: HostClock,

@@ -112,7 +112,7 @@ impl SimulatedScene {
         })
     }
 
-    pub fn new(scenario: &crate::sim::Scenario) -> Result<Self, crate::sim::ScenarioError> {
+    pub(crate) fn new(scenario: &crate::sim::Scenario) -> Result<Self, crate::sim::ScenarioError> {
         let simulator = crate::sim::Simulator::new(scenario)?;
         let imu_to_body = simulator
             .imu()

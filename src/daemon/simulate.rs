@@ -21,7 +21,7 @@ use std::path::Path;
 /// Host seconds given to the handshake before simulated time 0.
 pub const HANDSHAKE_S: f64 = 1.0;
 /// Host delay between a measurement being complete and its bytes being read.
-pub const READ_LATENCY_NS: u64 = 500_000;
+pub(crate) const READ_LATENCY_NS: u64 = 500_000;
 /// The device clocks start away from the host clock, as real ones do.
 const SCANNER_CLOCK_OFFSET_MS: u32 = 3_141_592;
 const IMU_CLOCK_OFFSET_TICKS: u64 = 27_182_818;
@@ -328,7 +328,7 @@ fn emulated_model(name: &str, geometry: &ScannerGeometry) -> scip::Model {
 }
 
 /// The placeholder port of a simulated sensor in [`rig_config`].
-pub fn simulated_connection(sensor: &str) -> String {
+pub(crate) fn simulated_connection(sensor: &str) -> String {
     format!("serial:/dev/simulated-{sensor}")
 }
 

@@ -11,7 +11,7 @@ use super::pipeline::{Estimator, Output};
 use crate::estimate::Estimate;
 
 /// How the estimates reach the autopilot.
-pub trait Autopilot {
+pub(crate) trait Autopilot {
     type Error: From<OutputError>;
     /// An IMU-rate estimate; `files` takes the frames sent, for `mavlink.tlog`, when the sender
     /// writes them there.
@@ -64,14 +64,14 @@ pub struct Tally {
 }
 
 /// The one route of the fusion's outputs.
-pub struct Sink<A> {
+pub(crate) struct Sink<A> {
     autopilot: A,
     tally: Tally,
     warnings: OutcomeWarnings,
 }
 
 impl<A: Autopilot> Sink<A> {
-    pub fn new(autopilot: A) -> Self {
+    pub(crate) fn new(autopilot: A) -> Self {
         Self {
             autopilot,
             tally: Tally::default(),
@@ -80,7 +80,7 @@ impl<A: Autopilot> Sink<A> {
     }
 
     /// Takes one output of the chunk read at `read_ns`, which is also the warnings' clock.
-    pub fn output<E: Estimator>(
+    pub(crate) fn output<E: Estimator>(
         &mut self,
         output: &Output<E::Epoch>,
         read_ns: u64,
@@ -126,15 +126,15 @@ impl<A: Autopilot> Sink<A> {
         self.tally.outcomes.add(&counts);
     }
 
-    pub fn tally(&self) -> &Tally {
+    pub(crate) fn tally(&self) -> &Tally {
         &self.tally
     }
 
-    pub fn autopilot(&self) -> &A {
+    pub(crate) fn autopilot(&self) -> &A {
         &self.autopilot
     }
 
-    pub fn into_parts(self) -> (A, Tally) {
+    pub(crate) fn into_parts(self) -> (A, Tally) {
         (self.autopilot, self.tally)
     }
 }

@@ -21,7 +21,7 @@ pub struct TruthErrors {
 }
 
 /// Errors of the `estimates` from `from_s` on, each against the truth sample nearest in time.
-pub fn truth_errors(
+pub(crate) fn truth_errors(
     estimates: &[Estimate],
     truth: &[TruthSample],
     from_s: f64,
@@ -66,7 +66,7 @@ pub struct AutopilotView {
 }
 
 /// The autopilot's view of `estimates` (in time order), with `policy`'s quality.
-pub fn autopilot_view(
+pub(crate) fn autopilot_view(
     estimates: &[Estimate],
     truth: &[TruthSample],
     policy: &QualityPolicy,
@@ -139,11 +139,11 @@ impl ErrorSeries {
             .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
     }
 
-    pub fn len(&self) -> usize {
+    pub(crate) fn len(&self) -> usize {
         self.velocity.len()
     }
 
-    pub fn is_empty(&self) -> bool {
+    pub(crate) fn is_empty(&self) -> bool {
         self.velocity.is_empty()
     }
 

@@ -13,10 +13,10 @@ use tokio_util::sync::CancellationToken;
 
 /// Cloneable counter the fusion loop advances.
 #[derive(Debug, Clone, Default)]
-pub struct Progress(Arc<AtomicU64>);
+pub(crate) struct Progress(Arc<AtomicU64>);
 
 impl Progress {
-    pub fn advance(&self) {
+    pub(crate) fn advance(&self) {
         self.0.fetch_add(1, Ordering::Relaxed);
     }
 
@@ -27,18 +27,18 @@ impl Progress {
 
 /// Decides, tick by tick, whether the loop has moved since the previous tick.
 #[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ProgressGate {
+pub(crate) struct ProgressGate {
     last: Option<u64>,
 }
 
 impl ProgressGate {
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self { last: None }
     }
 
     /// True when `count` differs from the count at the previous call (the first call only
     /// records it: starting up is not progress).
-    pub fn moved(&mut self, count: u64) -> bool {
+    pub(crate) fn moved(&mut self, count: u64) -> bool {
         let moved = self.last.is_some_and(|last| last != count);
         self.last = Some(count);
         moved
@@ -58,12 +58,12 @@ async fn notify(state: NotifyState<'static>) {
 
 /// Replaces the status line of `systemctl status` (from the fusion thread: a datagram, no
 /// waiting; outside systemd it does nothing).
-pub fn status(line: &str) {
+pub(crate) fn status(line: &str) {
     let _ = sd_notify::notify(&[NotifyState::Status(line)]);
 }
 
 /// Tells systemd the daemon is up (`Type=notify`), with a status line for `systemctl status`.
-pub async fn ready(status: &str) {
+pub(crate) async fn ready(status: &str) {
     let status = status.to_string();
     let _ = tokio::task::spawn_blocking(move || {
         sd_notify::notify(&[NotifyState::Ready, NotifyState::Status(&status)])
@@ -71,13 +71,13 @@ pub async fn ready(status: &str) {
     .await;
 }
 
-pub async fn stopping() {
+pub(crate) async fn stopping() {
     notify(NotifyState::Stopping).await;
 }
 
 /// Feeds the watchdog until `cancel`; returns at once when systemd set none (`WatchdogSec`
 /// unset, or not running under systemd).
-pub async fn run(progress: Progress, cancel: CancellationToken) {
+pub(crate) async fn run(progress: Progress, cancel: CancellationToken) {
     let Some(interval) = sd_notify::watchdog_enabled() else {
         return;
     };

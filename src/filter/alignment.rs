@@ -9,7 +9,7 @@ use super::update::{Jacobian3, Observability, Stacked};
 use crate::sensors::ImuSample;
 
 /// Whether one sample looks like a body at rest: slow rate and gravity-sized specific force.
-pub fn looks_stationary(
+pub(crate) fn looks_stationary(
     sample: &ImuSample,
     gravity: f64,
     max_rate: f64,
@@ -28,7 +28,7 @@ fn rate_and_force(sample: &ImuSample) -> (Vector3<f64>, Vector3<f64>) {
 
 /// Means of the IMU-frame specific force and rate over the alignment window.
 #[derive(Debug, Clone, Copy, Default)]
-pub struct StationaryMeans {
+pub(crate) struct StationaryMeans {
     force: Vector3<f64>,
     rate: Vector3<f64>,
     weight: f64,
@@ -36,28 +36,28 @@ pub struct StationaryMeans {
 
 impl StationaryMeans {
     /// Adds one sample, weighted by the time it covers.
-    pub fn add(&mut self, sample: &ImuSample, interval: f64) {
+    pub(crate) fn add(&mut self, sample: &ImuSample, interval: f64) {
         let (rate, force) = rate_and_force(sample);
         self.force += force * interval;
         self.rate += rate * interval;
         self.weight += interval;
     }
 
-    pub fn mean_rate(&self) -> Vector3<f64> {
+    pub(crate) fn mean_rate(&self) -> Vector3<f64> {
         self.rate / self.weight
     }
 
-    pub fn mean_force(&self) -> Vector3<f64> {
+    pub(crate) fn mean_force(&self) -> Vector3<f64> {
         self.force / self.weight
     }
 
-    pub fn weight(&self) -> f64 {
+    pub(crate) fn weight(&self) -> f64 {
         self.weight
     }
 
     /// Whether these means show motion against `reference` (both over a body at rest would
     /// agree to the sensor noise): the specific force turned or changed, or the rate changed.
-    pub fn departs_from(
+    pub(crate) fn departs_from(
         &self,
         reference: &Self,
         max_force_change: f64,
@@ -71,7 +71,11 @@ impl StationaryMeans {
     /// rest, and on average in a window without net acceleration), yaw is 0, and, when the
     /// window was `still`, the mean rate (which includes the Earth rate) is the gyro bias;
     /// in motion it is the motion, and the bias starts at 0.
-    pub fn aligned_state(&self, imu_to_body: &UnitQuaternion<f64>, still: bool) -> NominalState {
+    pub(crate) fn aligned_state(
+        &self,
+        imu_to_body: &UnitQuaternion<f64>,
+        still: bool,
+    ) -> NominalState {
         let f = imu_to_body * (self.force / self.weight);
         let roll = (-f.y).atan2(-f.z);
         let pitch = f.x.atan2((f.y * f.y + f.z * f.z).sqrt());
@@ -88,7 +92,7 @@ impl StationaryMeans {
 
 /// Zero velocity and, from the mean gyro output over the interval, zero rate:
 /// `0 - v = dv + n_v` and `mean(w_m) - b_g = db_g + n_w`, `n_w` of variance `N_g^2 / T`.
-pub fn zero_motion_rows(
+pub(crate) fn zero_motion_rows(
     state: &NominalState,
     mean_rate_imu: &Vector3<f64>,
     interval: f64,

@@ -11,7 +11,7 @@ use crate::sensors::Mount;
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 /// Standard gravity (CGPM 1901), the default magnitude of the gravity model.
-pub const STANDARD_GRAVITY: f64 = 9.80665;
+pub(crate) const STANDARD_GRAVITY: f64 = 9.80665;
 
 /// How an odometry epoch's relative pose enters the filter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -194,12 +194,12 @@ impl Default for FilterConfig {
 
 impl FilterConfig {
     /// Every problem of the table, one line each.
-    pub fn validate(&self) -> Result<(), ConfigErrors> {
+    pub(crate) fn validate(&self) -> Result<(), ConfigErrors> {
         ConfigErrors::collect(|errors| self.check(errors))
     }
 
     /// Adds every problem of the table to `errors`.
-    pub fn check(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check(&self, errors: &mut ConfigErrors) {
         let mut filter = errors.table("filter");
         let positive = [
             ("gravity_mps2", self.gravity_mps2),
@@ -317,7 +317,7 @@ impl FilterConfig {
     }
 
     /// Rotation of IMU-frame vectors into the body frame.
-    pub fn imu_to_body(&self) -> UnitQuaternion<f64> {
+    pub(crate) fn imu_to_body(&self) -> UnitQuaternion<f64> {
         Mount::from_rpy_deg(self.imu_mount_rpy_deg, [0.0; 3]).rotation
     }
 

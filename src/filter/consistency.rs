@@ -73,7 +73,7 @@ pub fn chi_square_quantile(probability: f64, dof: usize) -> f64 {
     0.5 * (low + high)
 }
 
-pub fn chi_square_cdf(x: f64, dof: usize) -> f64 {
+pub(crate) fn chi_square_cdf(x: f64, dof: usize) -> f64 {
     if x <= 0.0 {
         return 0.0;
     }

@@ -20,7 +20,7 @@ use super::strapdown::Corrected;
 
 /// The non-zero blocks of the continuous error-dynamics matrix `A`.
 #[derive(Debug, Clone, Copy)]
-pub struct ErrorDynamics {
+pub(crate) struct ErrorDynamics {
     vel_att: Matrix3<f64>,
     vel_accel_bias: Matrix3<f64>,
     vel_accel_scale: Matrix3<f64>,
@@ -30,7 +30,7 @@ pub struct ErrorDynamics {
 
 impl ErrorDynamics {
     /// Linearised about the attitude at the start of the interval and the mean corrected rates.
-    pub fn new(
+    pub(crate) fn new(
         q: &UnitQuaternion<f64>,
         imu_to_body: &UnitQuaternion<f64>,
         inc: &Corrected,
@@ -79,7 +79,7 @@ impl ErrorDynamics {
     /// `P <- F P F^T + Q dt` in place. With `with_clone` false the clone rows and columns
     /// (stale until the next clone overwrites them) are skipped. Returns whether every entry
     /// it changed is finite, so the caller need not scan the matrix again per IMU sample.
-    pub fn propagate(
+    pub(crate) fn propagate(
         &self,
         p: &mut Covariance,
         noise: &ProcessNoise,
@@ -137,12 +137,12 @@ impl ErrorDynamics {
 
 /// Diagonal white-noise spectral densities (squared) per error-state block.
 #[derive(Debug, Clone, Copy)]
-pub struct ProcessNoise {
+pub(crate) struct ProcessNoise {
     blocks: [(usize, f64); 6],
 }
 
 impl ProcessNoise {
-    pub fn new(config: &FilterConfig) -> Self {
+    pub(crate) fn new(config: &FilterConfig) -> Self {
         Self {
             blocks: [
                 (VEL, config.accel_noise_density.powi(2)),
@@ -168,7 +168,7 @@ impl ProcessNoise {
     }
 }
 
-pub fn symmetrise(p: &mut Covariance) {
+pub(crate) fn symmetrise(p: &mut Covariance) {
     for i in 0..AUGMENTED {
         for j in i + 1..AUGMENTED {
             let mean = 0.5 * (p[(i, j)] + p[(j, i)]);

@@ -43,7 +43,7 @@ impl fmt::Display for Divergence {
 
 /// The NIS of the last `window` fused relative poses and the refusals in a row.
 #[derive(Debug, Clone)]
-pub struct DivergenceGuard {
+pub(crate) struct DivergenceGuard {
     window: usize,
     recent: VecDeque<(f64, usize)>,
     refused_in_row: u32,
@@ -52,7 +52,7 @@ pub struct DivergenceGuard {
 }
 
 impl DivergenceGuard {
-    pub fn new(config: &FilterConfig) -> Self {
+    pub(crate) fn new(config: &FilterConfig) -> Self {
         Self {
             window: config.divergence_window as usize,
             recent: VecDeque::with_capacity(config.divergence_window as usize),
@@ -63,13 +63,18 @@ impl DivergenceGuard {
     }
 
     /// Forgets the history (after a restart, the old innovations say nothing of the new state).
-    pub fn clear(&mut self) {
+    pub(crate) fn clear(&mut self) {
         self.recent.clear();
         self.refused_in_row = 0;
     }
 
     /// Takes one relative-pose update's NIS; `accepted` is the gate's verdict.
-    pub fn after_update(&mut self, nis: f64, dof: usize, accepted: bool) -> Option<Divergence> {
+    pub(crate) fn after_update(
+        &mut self,
+        nis: f64,
+        dof: usize,
+        accepted: bool,
+    ) -> Option<Divergence> {
         if dof == 0 {
             return None;
         }
@@ -99,7 +104,7 @@ impl DivergenceGuard {
             .then_some(Divergence::Innovations { nis, dof })
     }
 
-    pub fn check_speed(&self, speed_mps: f64) -> Option<Divergence> {
+    pub(crate) fn check_speed(&self, speed_mps: f64) -> Option<Divergence> {
         (speed_mps > self.max_speed_mps).then_some(Divergence::ImpossibleSpeed { mps: speed_mps })
     }
 }

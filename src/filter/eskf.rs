@@ -28,14 +28,12 @@ mod pose_prior;
 mod relative_pose_update;
 mod zero_motion_update;
 
-pub use pose_prior::PosePrior;
-
 /// Most covariance steps taken to bridge one IMU gap.
 const MAX_GAP_STEPS: f64 = 1000.0;
 
 /// Where the filter is in its start-up.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum FilterPhase {
+pub(crate) enum FilterPhase {
     /// Averaging the first `coarse_alignment_s` of IMU data; no estimate yet.
     Aligning,
     /// Aligned; zero-velocity and zero-rate updates run until the end of the stationary start.
@@ -92,13 +90,13 @@ pub enum ResetReason {
 
 /// Why the estimate should not be trusted as a full IMU/odometry solution.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Degradation {
+pub(crate) enum Degradation {
     ImuGap { seconds: f64 },
 }
 
 /// Counts of bad input, for logs and the summary.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct FilterCounters {
+pub(crate) struct FilterCounters {
     pub non_monotonic: u64,
     pub non_finite: u64,
     pub bad_interval: u64,
@@ -242,7 +240,7 @@ impl Resume {
 
 impl Eskf {
     /// A filter that aligns itself from the stationary start.
-    pub fn new(config: FilterConfig) -> Result<Self, ConfigErrors> {
+    pub(crate) fn new(config: FilterConfig) -> Result<Self, ConfigErrors> {
         config.validate()?;
         let state = NominalState::at_rest(UnitQuaternion::identity(), Vector3::zeros());
         let covariance = initial_covariance(&config, &state.q, StartSigmas::still(&config));
@@ -702,14 +700,15 @@ impl Eskf {
     }
 
     /// Propagated pose at `t` within the pose history (deskewing a beam measured at `t`).
-    pub fn pose_at(&self, t: f64) -> Option<Pose> {
+    #[cfg(test)]
+    pub(crate) fn pose_at(&self, t: f64) -> Option<Pose> {
         self.history.pose_at(t)
     }
 
     /// The pose at `t` from the history or, for a `t` after the newest IMU sample, the newest
     /// pose carried on with the current velocity and body rate (what deskew uses for beams read
     /// after the IMU). `None` before the history or before any IMU sample.
-    pub fn pose_at_or_after(&self, t: f64) -> Option<Pose> {
+    pub(crate) fn pose_at_or_after(&self, t: f64) -> Option<Pose> {
         if let Some(pose) = self.history.pose_at(t) {
             return Some(pose);
         }
@@ -739,7 +738,7 @@ impl Eskf {
             .flatten()
     }
 
-    pub fn estimate(&self) -> Estimate {
+    pub(crate) fn estimate(&self) -> Estimate {
         let t = self.t.unwrap_or(0.0);
         let block =
             |at: usize| -> Matrix3<f64> { self.covariance.fixed_view::<3, 3>(at, at).into() };
@@ -776,7 +775,7 @@ impl Eskf {
         )
     }
 
-    pub fn phase(&self) -> FilterPhase {
+    pub(crate) fn phase(&self) -> FilterPhase {
         self.phase
     }
     pub fn state(&self) -> &NominalState {
@@ -790,24 +789,22 @@ impl Eskf {
     pub fn time(&self) -> Option<f64> {
         self.t
     }
-    pub fn counters(&self) -> FilterCounters {
+    #[cfg(test)]
+    pub(crate) fn counters(&self) -> FilterCounters {
         self.counters
     }
-    pub fn last_reset(&self) -> Option<ResetReason> {
+    #[cfg(test)]
+    pub(crate) fn last_reset(&self) -> Option<ResetReason> {
         self.last_reset
     }
-    pub fn degradation(&self) -> Option<Degradation> {
-        self.degraded
-    }
-    pub fn config(&self) -> &FilterConfig {
-        &self.config
-    }
     /// Standard deviations of the 21 error states, in `state.rs` order.
-    pub fn sigmas(&self) -> [f64; ERROR_STATES] {
+    #[cfg(test)]
+    pub(crate) fn sigmas(&self) -> [f64; ERROR_STATES] {
         std::array::from_fn(|i| self.covariance[(i, i)].sqrt())
     }
     /// Gyro bias in the IMU frame, rad/s.
-    pub fn gyro_bias(&self) -> Vector3<f64> {
+    #[cfg(test)]
+    pub(crate) fn gyro_bias(&self) -> Vector3<f64> {
         self.state.gyro_bias
     }
 }

@@ -6,7 +6,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 
 use super::consistency::chi_square_quantile;
-use super::eskf::euler_attitude_covariance;
+use super::eskf::{euler_attitude_covariance, DropReason, FilterCounters, UpdateError, UpdateKind};
 use super::testkit::{self, Circle, ConstantRotation, ImuErrors, Stationary, Trajectory};
 use super::*;
 use crate::sensors::ImuSample;

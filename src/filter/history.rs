@@ -7,21 +7,21 @@ use nalgebra::{UnitQuaternion, Vector3};
 
 /// Pose of the body at time `t`: position NED and attitude body->NED.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Pose {
+pub(crate) struct Pose {
     pub t: f64,
     pub p: Vector3<f64>,
     pub q: UnitQuaternion<f64>,
 }
 
 #[derive(Debug, Clone)]
-pub struct PoseHistory {
+pub(crate) struct PoseHistory {
     poses: VecDeque<Pose>,
     capacity: usize,
 }
 
 impl PoseHistory {
     /// Allocates once; pushing never allocates afterwards.
-    pub fn with_capacity(capacity: usize) -> Self {
+    pub(crate) fn with_capacity(capacity: usize) -> Self {
         Self {
             poses: VecDeque::with_capacity(capacity),
             capacity,
@@ -29,7 +29,7 @@ impl PoseHistory {
     }
 
     /// Appends a pose newer than every stored one, dropping the oldest when full.
-    pub fn push(&mut self, pose: Pose) {
+    pub(crate) fn push(&mut self, pose: Pose) {
         if self.poses.len() == self.capacity {
             self.poses.pop_front();
         }
@@ -37,14 +37,14 @@ impl PoseHistory {
     }
 
     /// Removes the newest pose (replaced after a measurement update at the same time).
-    pub fn pop_newest(&mut self) {
+    pub(crate) fn pop_newest(&mut self) {
         self.poses.pop_back();
     }
 
     /// Applies a measurement update's correction to every stored pose: `rotation` (NED) turns
     /// each attitude and the positions about the newest pose, then `shift` moves them all, so
     /// the newest lands on the corrected state and relative motion is kept.
-    pub fn correct(&mut self, shift: &Vector3<f64>, rotation: &UnitQuaternion<f64>) {
+    pub(crate) fn correct(&mut self, shift: &Vector3<f64>, rotation: &UnitQuaternion<f64>) {
         let Some(anchor) = self.poses.back().map(|pose| pose.p) else {
             return;
         };
@@ -55,13 +55,13 @@ impl PoseHistory {
     }
 
     /// Time span covered, oldest to newest.
-    pub fn span(&self) -> Option<(f64, f64)> {
+    pub(crate) fn span(&self) -> Option<(f64, f64)> {
         Some((self.poses.front()?.t, self.poses.back()?.t))
     }
 
     /// Pose at `t` by linear interpolation of position and slerp of attitude between the two
     /// stored poses around it; `None` outside the stored span (no extrapolation).
-    pub fn pose_at(&self, t: f64) -> Option<Pose> {
+    pub(crate) fn pose_at(&self, t: f64) -> Option<Pose> {
         let (oldest, newest) = self.span()?;
         if !(t >= oldest && t <= newest) {
             return None;

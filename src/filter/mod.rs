@@ -29,11 +29,9 @@ pub(crate) mod update;
 
 pub use config::{FilterConfig, RelativePoseUpdate};
 pub use consistency::{chi_square_quantile, mean_nees_interval, nees, nis, Normalised};
-pub use eskf::{
-    Degradation, DropReason, Eskf, FilterCounters, FilterPhase, ImuOutcome, PosePrior, ResetReason,
-    UpdateError, UpdateKind, UpdateReport,
-};
-pub use history::Pose;
+pub use eskf::Eskf;
+pub(crate) use eskf::{FilterPhase, ImuOutcome, ResetReason, UpdateReport};
+pub(crate) use history::Pose;
 pub use relative_pose::{
     RelativePoseMeasurement, RelativeRotation, RelativeTranslation, SharedNoise,
 };

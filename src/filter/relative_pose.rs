@@ -66,7 +66,7 @@ pub struct SharedNoise {
 /// the filter (`CARRIED..`) while the clone is open: its covariance before that update (the
 /// update's `SharedNoise::current`) and its estimate after it.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CarriedNoise {
+pub(crate) struct CarriedNoise {
     pub prior: [Matrix3<f64>; 2],
     pub mean: [Vector3<f64>; 2],
 }
@@ -88,7 +88,7 @@ pub struct RelativePoseMeasurement {
 }
 
 impl RelativePoseMeasurement {
-    pub fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         let finite =
             |m: &Matrix3<f64>, v: &Vector3<f64>| m.iter().chain(v.iter()).all(|x| x.is_finite());
         self.t_ref.is_finite()
@@ -102,7 +102,7 @@ impl RelativePoseMeasurement {
     }
 
     /// Predicted `C_j^i` and `dR` from two poses.
-    pub fn predict(reference: &Pose, current: &Pose) -> (UnitQuaternion<f64>, Vector3<f64>) {
+    pub(crate) fn predict(reference: &Pose, current: &Pose) -> (UnitQuaternion<f64>, Vector3<f64>) {
         (
             reference.q.inverse() * current.q,
             reference
@@ -116,7 +116,7 @@ impl RelativePoseMeasurement {
     /// filter's own propagated motion between `at_ref` (pose at `t_ref`) and `from`, and
     /// between `at_t` (pose at `t`) and `to`. Over such short bridges the IMU motion is far
     /// more precise than the odometry, so the covariances are kept as reported.
-    pub fn bridged(&self, from: &Pose, at_ref: &Pose, at_t: &Pose, to: &Pose) -> Self {
+    pub(crate) fn bridged(&self, from: &Pose, at_ref: &Pose, at_t: &Pose, to: &Pose) -> Self {
         let (c_front, d_front) = Self::predict(from, at_ref);
         let (c_back, d_back) = Self::predict(at_t, to);
         let measured_rotation = match &self.rotation {
@@ -146,7 +146,7 @@ impl RelativePoseMeasurement {
     ///
     /// `covariance` (the filter's, with the clone open) adds the displacement's second-order
     /// term (`second_order_noise`).
-    pub fn cloned_rows(
+    pub(crate) fn cloned_rows(
         &self,
         reference: &Pose,
         current: &NominalState,
@@ -197,7 +197,7 @@ impl RelativePoseMeasurement {
     /// (from the pose history) taken as exact, and mean body rate from the rotation, on the
     /// gyro bias and scale factor. `imu_to_body` is `M`; `gyro_noise_density` the white gyro
     /// noise, whose integral over the interval the rate residual also carries.
-    pub fn velocity_rows(
+    pub(crate) fn velocity_rows(
         &self,
         reference: &Pose,
         current: &NominalState,

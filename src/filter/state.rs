@@ -9,22 +9,22 @@ use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector3};
 pub const POS: usize = 0;
 pub const VEL: usize = 3;
 pub const ATT: usize = 6;
-pub const GYRO_BIAS: usize = 9;
-pub const ACCEL_BIAS: usize = 12;
-pub const GYRO_SCALE: usize = 15;
-pub const ACCEL_SCALE: usize = 18;
+pub(crate) const GYRO_BIAS: usize = 9;
+pub(crate) const ACCEL_BIAS: usize = 12;
+pub(crate) const GYRO_SCALE: usize = 15;
+pub(crate) const ACCEL_SCALE: usize = 18;
 /// Number of error states of the filter proper.
-pub const ERROR_STATES: usize = 21;
-pub const CLONE_POS: usize = 21;
-pub const CLONE_ATT: usize = 24;
+pub(crate) const ERROR_STATES: usize = 21;
+pub(crate) const CLONE_POS: usize = 21;
+pub(crate) const CLONE_ATT: usize = 24;
 /// The carried noise of the reference epoch's planes: rotation (right perturbation, body axes
 /// of the reference epoch), then displacement.
-pub const CARRIED: usize = 27;
+pub(crate) const CARRIED: usize = 27;
 /// Error states, the clone of the reference pose and the carried noise.
-pub const AUGMENTED: usize = 33;
+pub(crate) const AUGMENTED: usize = 33;
 
 pub type Covariance = SMatrix<f64, AUGMENTED, AUGMENTED>;
-pub type ErrorState = SVector<f64, AUGMENTED>;
+pub(crate) type ErrorState = SVector<f64, AUGMENTED>;
 
 /// Nominal (large-signal) state. The IMU model, per axis in the IMU frame, is
 /// `measured = (1 + scale) * true + bias + noise` for both the gyro and the accelerometer.
@@ -60,7 +60,7 @@ impl NominalState {
     }
 
     /// Adds an error-state correction (true = nominal + error; attitude `q <- Exp(dtheta) q`).
-    pub fn inject(&self, dx: &ErrorState) -> Self {
+    pub(crate) fn inject(&self, dx: &ErrorState) -> Self {
         let block = |at: usize| Vector3::new(dx[at], dx[at + 1], dx[at + 2]);
         Self {
             p: self.p + block(POS),
@@ -73,7 +73,7 @@ impl NominalState {
         }
     }
 
-    pub fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         let vectors = [
             self.p,
             self.v,

@@ -26,7 +26,7 @@ use crate::sensors::ImuSample;
 /// Angle and velocity increments over `(t - dt, t]` in the IMU frame at the start of the
 /// interval, before bias and scale-factor correction.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ImuIncrement {
+pub(crate) struct ImuIncrement {
     pub t: f64,
     pub dt: f64,
     pub dtheta: Vector3<f64>,
@@ -36,7 +36,7 @@ pub struct ImuIncrement {
 impl ImuIncrement {
     /// The increment ending at `current`, using `previous` for `Rate` samples. `None` for a
     /// first `Rate` sample (nothing to pair with).
-    pub fn from_samples(previous: Option<&ImuSample>, current: &ImuSample) -> Option<Self> {
+    pub(crate) fn from_samples(previous: Option<&ImuSample>, current: &ImuSample) -> Option<Self> {
         match *current {
             ImuSample::Delta { t, dt, dq, dv } => Some(Self {
                 t,
@@ -83,7 +83,11 @@ impl ImuIncrement {
     }
 
     /// Removes bias and scale factor and rotates into the body frame.
-    pub fn corrected(&self, state: &NominalState, imu_to_body: &UnitQuaternion<f64>) -> Corrected {
+    pub(crate) fn corrected(
+        &self,
+        state: &NominalState,
+        imu_to_body: &UnitQuaternion<f64>,
+    ) -> Corrected {
         let dtheta_imu = (self.dtheta - state.gyro_bias * self.dt)
             .component_div(&state.gyro_scale.add_scalar(1.0));
         let dv_imu = (self.dv - state.accel_bias * self.dt)
@@ -101,7 +105,7 @@ impl ImuIncrement {
 /// A bias- and scale-corrected increment, in the IMU frame (for the Jacobians) and the body
 /// frame (for the mechanisation).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Corrected {
+pub(crate) struct Corrected {
     pub dt: f64,
     pub dtheta_imu: Vector3<f64>,
     pub dv_imu: Vector3<f64>,
@@ -110,7 +114,11 @@ pub struct Corrected {
 }
 
 /// Integrates one corrected increment; biases and scale factors are constant here.
-pub fn mechanise(state: &NominalState, inc: &Corrected, gravity: &Vector3<f64>) -> NominalState {
+pub(crate) fn mechanise(
+    state: &NominalState,
+    inc: &Corrected,
+    gravity: &Vector3<f64>,
+) -> NominalState {
     let v_next = state.v + state.q * inc.dv + gravity * inc.dt;
     NominalState {
         p: state.p + (state.v + v_next) * (inc.dt / 2.0),

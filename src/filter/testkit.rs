@@ -7,13 +7,13 @@ use rand_distr::StandardNormal;
 
 use crate::sensors::{ImuSample, TruthSample};
 
-pub const G: f64 = 9.80665;
+pub(crate) const G: f64 = 9.80665;
 
-pub fn gravity() -> Vector3<f64> {
+pub(crate) fn gravity() -> Vector3<f64> {
     Vector3::new(0.0, 0.0, G)
 }
 
-pub trait Trajectory {
+pub(crate) trait Trajectory {
     fn truth(&self, t: f64) -> TruthSample;
     /// Body angular rate, FRD, rad/s.
     fn body_rate(&self, t: f64) -> Vector3<f64>;
@@ -57,7 +57,7 @@ pub trait Trajectory {
 
 /// A circle in the horizontal plane, heading along the track, rolling and pitching sinusoidally.
 #[derive(Debug, Clone, Copy)]
-pub struct Circle {
+pub(crate) struct Circle {
     pub radius: f64,
     pub omega: f64,
     pub roll_amplitude: f64,
@@ -124,7 +124,7 @@ impl Trajectory for Circle {
 
 /// At rest at the origin with a fixed attitude.
 #[derive(Debug, Clone, Copy)]
-pub struct Stationary {
+pub(crate) struct Stationary {
     pub q: UnitQuaternion<f64>,
 }
 
@@ -147,7 +147,7 @@ impl Trajectory for Stationary {
 
 /// Constant velocity with a constant body rate (spinning while drifting).
 #[derive(Debug, Clone, Copy)]
-pub struct ConstantRotation {
+pub(crate) struct ConstantRotation {
     pub q0: UnitQuaternion<f64>,
     pub rate: Vector3<f64>,
     pub velocity: Vector3<f64>,
@@ -172,7 +172,7 @@ impl Trajectory for ConstantRotation {
 
 /// Sensor errors added to noise-free `Rate` samples.
 #[derive(Debug, Clone, Copy)]
-pub struct ImuErrors {
+pub(crate) struct ImuErrors {
     pub gyro_bias: Vector3<f64>,
     pub accel_bias: Vector3<f64>,
     pub gyro_noise_density: f64,
@@ -180,7 +180,7 @@ pub struct ImuErrors {
 }
 
 impl ImuErrors {
-    pub fn corrupt(&self, samples: &mut [ImuSample], rate_hz: f64, rng: &mut ChaCha8Rng) {
+    pub(crate) fn corrupt(&self, samples: &mut [ImuSample], rate_hz: f64, rng: &mut ChaCha8Rng) {
         let mut white = |density: f64| -> Vector3<f64> {
             Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal)) * density * rate_hz.sqrt()
         };

@@ -8,8 +8,8 @@ use super::covariance::symmetrise;
 use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CARRIED, CLONE_ATT};
 
 /// Up to six measurement rows: two three-row blocks (e.g. rotation and displacement).
-pub const ROWS: usize = 6;
-pub type Jacobian3 = SMatrix<f64, 3, AUGMENTED>;
+pub(crate) const ROWS: usize = 6;
+pub(crate) type Jacobian3 = SMatrix<f64, 3, AUGMENTED>;
 
 /// The directions of a three-dimensional measurement that the sensor actually observed.
 /// Columns `0..rank` of `basis` are an orthonormal basis of the observable subspace.
@@ -51,11 +51,13 @@ impl Observability {
         Self { basis, rank }
     }
 
-    pub fn rank(&self) -> usize {
+    #[cfg(test)]
+    pub(crate) fn rank(&self) -> usize {
         self.rank
     }
 
-    pub fn observable_directions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
+    #[cfg(test)]
+    pub(crate) fn observable_directions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
         (0..self.rank).map(|i| self.basis.column(i).into())
     }
 }
@@ -64,7 +66,7 @@ impl Observability {
 /// Jacobian, zero innovation and unit variance uncorrelated with the rest, so they change
 /// neither the state, the covariance nor the NIS.
 #[derive(Debug, Clone, Copy)]
-pub struct Stacked {
+pub(crate) struct Stacked {
     innovation: SVector<f64, ROWS>,
     jacobian: SMatrix<f64, ROWS, AUGMENTED>,
     noise: SMatrix<f64, ROWS, ROWS>,
@@ -90,7 +92,7 @@ impl Default for Stacked {
 
 impl Stacked {
     /// Adds a three-row block `innovation = H dx + noise`, keeping only its observable part.
-    pub fn push(
+    pub(crate) fn push(
         &mut self,
         innovation: &Vector3<f64>,
         jacobian: &Jacobian3,
@@ -119,7 +121,7 @@ impl Stacked {
     /// Marks part of the last pushed block's noise, of covariance `covariance`, as carried out
     /// to the next measurement as block `block` (0 rotation, 1 displacement) of the carried
     /// states; `observability` is the one the block was pushed with.
-    pub fn carry_out(
+    pub(crate) fn carry_out(
         &mut self,
         block: usize,
         covariance: &Matrix3<f64>,
@@ -140,29 +142,25 @@ impl Stacked {
     }
 
     /// The carried-out noise's own covariance, as `carry_out` set it.
-    pub fn carried_out_covariance(&self) -> Option<SMatrix<f64, 6, 6>> {
+    pub(crate) fn carried_out_covariance(&self) -> Option<SMatrix<f64, 6, 6>> {
         self.carried_out.map(|(_, own)| own)
     }
 
-    pub fn dof(&self) -> usize {
-        self.dof
-    }
-
-    pub fn is_finite(&self) -> bool {
+    pub(crate) fn is_finite(&self) -> bool {
         self.innovation.iter().all(|x| x.is_finite())
             && self.jacobian.iter().all(|x| x.is_finite())
             && self.noise.iter().all(|x| x.is_finite())
     }
 
     /// Innovation covariance `H P H^T + R` of the observable rows.
-    pub fn innovation_covariance(&self, p: &Covariance) -> SMatrix<f64, ROWS, ROWS> {
+    pub(crate) fn innovation_covariance(&self, p: &Covariance) -> SMatrix<f64, ROWS, ROWS> {
         self.jacobian * p * self.jacobian.transpose() + self.noise
     }
 }
 
 /// Result of the gate and, if it passed, of the update.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Gated {
+pub(crate) struct Gated {
     pub nis: f64,
     pub dof: usize,
     /// NIS threshold at the configured gate probability (infinite when the gate is off).
@@ -175,14 +173,14 @@ pub struct Gated {
 
 /// The innovation covariance is not positive definite (a broken measurement covariance).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NotPositiveDefinite;
+pub(crate) struct NotPositiveDefinite;
 
 /// NIS thresholds of the gate for 0..=6 observable rows, computed once per filter.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GateThresholds([f64; ROWS + 1]);
+pub(crate) struct GateThresholds([f64; ROWS + 1]);
 
 impl GateThresholds {
-    pub fn new(gate_probability: f64) -> Self {
+    pub(crate) fn new(gate_probability: f64) -> Self {
         Self(std::array::from_fn(|dof| {
             chi_square_quantile(gate_probability, dof)
         }))
@@ -193,7 +191,7 @@ impl GateThresholds {
 /// the attitude blocks (current and cloned): for a global error `Exp(dtheta_true) = Exp(dtheta) Exp(dtheta_hat)^-1`
 /// to second order, so `G = I + [dtheta_hat / 2]x` (Sola sec. 7, the sign flipped from the
 /// local-error eq. 287). Leaves `p` untouched on rejection.
-pub fn apply(
+pub(crate) fn apply(
     p: &mut Covariance,
     measurement: &Stacked,
     gate: &GateThresholds,

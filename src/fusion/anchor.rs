@@ -36,7 +36,7 @@ pub(super) struct Anchored {
 impl Anchored {
     /// `None` unless the displacement was under-determined with at least one observable
     /// direction.
-    pub fn new(
+    pub(crate) fn new(
         previous: &EpochPlanes,
         current: &EpochPlanes,
         epoch: &OdometryEpoch,
@@ -105,7 +105,7 @@ impl Anchored {
     }
 
     /// The anchored displacement without the matches in `excluded`.
-    pub fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
+    pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
         solve_displacement(
             &self.previous,
             &self.current,

@@ -21,7 +21,7 @@ use thiserror::Error;
 
 /// Parameters of one sensor clock.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ClockConfig {
+pub(crate) struct ClockConfig {
     /// Counter ticks per second.
     pub tick_hz: f64,
     /// The counter wraps to 0 at this value.
@@ -40,19 +40,22 @@ pub struct ClockConfig {
 
 impl ClockConfig {
     /// Hokuyo SCIP 2.0: 24-bit millisecond counter.
-    pub fn scip() -> Self {
+    #[cfg(test)]
+    pub(crate) fn scip() -> Self {
         Self::with_counter(1000.0, 1 << 24)
     }
     /// Xsens MTi-10/100 series (MTi-G-700/710): 10 kHz, wraps after one day.
-    pub fn xsens_100_series() -> Self {
+    #[cfg(test)]
+    pub(crate) fn xsens_100_series() -> Self {
         Self::with_counter(10_000.0, 864_000_000)
     }
     /// Xsens MTi-1 and 600 series: 10 kHz, wraps at 2^32.
-    pub fn xsens_600_series() -> Self {
+    #[cfg(test)]
+    pub(crate) fn xsens_600_series() -> Self {
         Self::with_counter(10_000.0, 1 << 32)
     }
 
-    pub fn with_counter(tick_hz: f64, modulus: u64) -> Self {
+    pub(crate) fn with_counter(tick_hz: f64, modulus: u64) -> Self {
         Self {
             tick_hz,
             modulus,
@@ -68,14 +71,14 @@ impl ClockConfig {
 /// A clock configuration the estimator cannot work with.
 #[derive(Debug, Clone, Copy, PartialEq, Error)]
 #[error("clock {key} = {value} is invalid: {fix}")]
-pub struct ClockConfigError {
+pub(crate) struct ClockConfigError {
     pub key: &'static str,
     pub value: f64,
     pub fix: &'static str,
 }
 
 impl ClockConfig {
-    pub fn validate(&self) -> Result<(), ClockConfigError> {
+    pub(crate) fn validate(&self) -> Result<(), ClockConfigError> {
         let checks = [
             (
                 "tick_hz",
@@ -137,14 +140,14 @@ struct Bin {
 
 /// Offset `host - device` at device time `x`: `offset + drift * x`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ClockFit {
+pub(crate) struct ClockFit {
     pub offset_s: f64,
     /// Host seconds per device second, minus one.
     pub drift: f64,
 }
 
 #[derive(Debug, Clone)]
-pub struct ClockEstimator {
+pub(crate) struct ClockEstimator {
     config: ClockConfig,
     origin: Option<Origin>,
     bins: VecDeque<Bin>,
@@ -162,7 +165,7 @@ struct Origin {
 }
 
 impl ClockEstimator {
-    pub fn new(config: ClockConfig) -> Result<Self, ClockConfigError> {
+    pub(crate) fn new(config: ClockConfig) -> Result<Self, ClockConfigError> {
         config.validate()?;
         Ok(Self {
             bins: VecDeque::with_capacity(config.window_bins + 1),
@@ -176,7 +179,7 @@ impl ClockEstimator {
     /// Takes one packet (raw counter value, host receive time in s) and returns the host time
     /// of its device instant under the updated fit; `None` (packet ignored) for a non-finite
     /// host time.
-    pub fn observe(&mut self, raw_ticks: u64, host_s: f64) -> Option<f64> {
+    pub(crate) fn observe(&mut self, raw_ticks: u64, host_s: f64) -> Option<f64> {
         if !host_s.is_finite() {
             return None;
         }
@@ -207,19 +210,21 @@ impl ClockEstimator {
 
     /// Host time of a device counter value near the latest packet (within half a wrap).
     /// `None` before the first packet.
-    pub fn map(&self, raw_ticks: u64) -> Option<f64> {
+    #[cfg(test)]
+    pub(crate) fn map(&self, raw_ticks: u64) -> Option<f64> {
         let origin = self.origin?;
         let raw = raw_ticks % self.config.modulus;
         let ticks = origin.last_ticks + self.signed_step(origin.last_raw, raw);
         Some(self.host_time(ticks as f64 / self.config.tick_hz))
     }
 
-    pub fn fit(&self) -> Option<ClockFit> {
+    #[cfg(test)]
+    pub(crate) fn fit(&self) -> Option<ClockFit> {
         self.fit
     }
 
     /// How many times the counter jumped against the host clock and the estimate restarted.
-    pub fn restarts(&self) -> u64 {
+    pub(crate) fn restarts(&self) -> u64 {
         self.restarts
     }
 

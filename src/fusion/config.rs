@@ -83,13 +83,8 @@ pub enum FusionError {
 }
 
 impl FusionConfig {
-    /// Every problem of the table, one line each.
-    pub fn validate(&self) -> Result<(), ConfigErrors> {
-        ConfigErrors::collect(|errors| self.check(errors))
-    }
-
     /// Adds every problem of the table to `errors`.
-    pub fn check(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check(&self, errors: &mut ConfigErrors) {
         let mut fusion = errors.table("fusion");
         let positive = "set a finite number above 0";
         let checks = [
@@ -136,7 +131,7 @@ impl FusionConfig {
     }
 
     /// Seconds between epochs.
-    pub fn epoch_interval_s(&self) -> f64 {
+    pub(crate) fn epoch_interval_s(&self) -> f64 {
         1.0 / self.epoch_rate_hz
     }
 
@@ -166,7 +161,7 @@ impl FusionSettings {
     }
 
     /// Adds every problem of the four tables to `errors`.
-    pub fn check(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check(&self, errors: &mut ConfigErrors) {
         self.fusion.check(errors);
         self.odometry.check(errors);
         self.integrity.check(errors);
@@ -176,7 +171,7 @@ impl FusionSettings {
 
     /// Adds a problem if the filter's pose history does not span an epoch interval: the one
     /// check that needs two tables.
-    pub fn check_history(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check_history(&self, errors: &mut ConfigErrors) {
         let needed = self.fusion.lookback_s() + self.fusion.max_scan_skew_s + HISTORY_MARGIN_S;
         errors.table("fusion").check(
             // An infinite need is an epoch rate of 0, which its own line already names.

@@ -8,7 +8,7 @@
 //! the relative pose against the clone of the pose at the previous epoch.
 
 mod anchor;
-pub mod clock;
+pub(crate) mod clock;
 pub(crate) mod config;
 mod confirmation;
 mod epoch;
@@ -16,7 +16,7 @@ pub mod record;
 mod shared_noise;
 
 pub use config::{FusionConfig, FusionError, FusionSettings};
-pub use record::{EpochOutcome, EpochRecord, UpdateSummary, WithCovariance};
+pub(crate) use record::{EpochOutcome, EpochRecord};
 
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::{Eskf, FilterPhase, ImuOutcome};
@@ -26,14 +26,14 @@ use crate::sensors::{ImuSample, Scan};
 
 /// A source whose staleness the daemon's watchdog reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Sensor {
+pub(crate) enum Sensor {
     Imu,
     Scanner(usize),
 }
 
 /// Counts of input the fusion set aside.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct FusionCounters {
+pub(crate) struct FusionCounters {
     /// Scans naming a scanner other than 0 or 1.
     pub unknown_scanner: u64,
     /// Scans with a non-finite start time.
@@ -159,7 +159,7 @@ impl Fusion {
     }
 
     /// The watchdog's verdict on a source; a stale source marks the estimates degraded.
-    pub fn mark_stale(&mut self, sensor: Sensor, stale: bool) {
+    pub(crate) fn mark_stale(&mut self, sensor: Sensor, stale: bool) {
         match sensor {
             Sensor::Imu => self.imu_stale = stale,
             Sensor::Scanner(k) if k < 2 => self.stale[k] = stale,
@@ -169,7 +169,11 @@ impl Fusion {
 
     /// Replaces a scanner's geometry and mount (its PP was re-read). The previous epoch's
     /// planes stay valid: they are in the body frame.
-    pub fn set_scanner(&mut self, index: usize, setup: ScannerSetup) -> Result<(), FusionError> {
+    pub(crate) fn set_scanner(
+        &mut self,
+        index: usize,
+        setup: ScannerSetup,
+    ) -> Result<(), FusionError> {
         if index >= 2 {
             return Err(FusionError::NoSuchScanner(index));
         }
@@ -192,7 +196,7 @@ impl Fusion {
     /// What an odometry epoch publishes at once, without waiting for the next IMU sample: the
     /// estimate at the newest IMU time with the epoch's update and integrity verdict applied.
     /// `None` while the filter is still aligning (it has no estimate yet).
-    pub fn epoch_estimate(&self) -> Option<Estimate> {
+    pub(crate) fn epoch_estimate(&self) -> Option<Estimate> {
         let aligned = self.filter.phase() != FilterPhase::Aligning;
         (aligned && self.filter.time().is_some()).then(|| self.estimate())
     }
@@ -201,12 +205,9 @@ impl Fusion {
         &self.filter
     }
 
-    pub fn counters(&self) -> FusionCounters {
+    #[cfg(test)]
+    pub(crate) fn counters(&self) -> FusionCounters {
         self.counters
-    }
-
-    pub fn config(&self) -> &FusionConfig {
-        &self.config
     }
 
     /// Reference time of a scan: the time of its middle reading.

@@ -35,7 +35,7 @@ pub struct WithCovariance {
 }
 
 impl WithCovariance {
-    pub fn new(value: &Vector3<f64>, covariance: &Matrix3<f64>) -> Self {
+    pub(crate) fn new(value: &Vector3<f64>, covariance: &Matrix3<f64>) -> Self {
         Self {
             value: (*value).into(),
             covariance: (*covariance).into(),

@@ -21,7 +21,7 @@ use crate::odometry::tangent_basis;
 /// conventions: rotation (right perturbation, body axes of the current epoch) from the normal's
 /// error (body axes of the plane's epoch), and displacement from the distance error.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PlaneNoiseMap {
+pub(crate) struct PlaneNoiseMap {
     /// Index of the plane in its epoch.
     plane: usize,
     rotation: Matrix3<f64>,
@@ -30,7 +30,7 @@ pub struct PlaneNoiseMap {
 
 /// The maps of one fused relative pose, for the planes of its reference and current epochs.
 #[derive(Debug, Clone, Default, PartialEq)]
-pub struct NoiseMaps {
+pub(crate) struct NoiseMaps {
     pub reference: Vec<PlaneNoiseMap>,
     pub current: Vec<PlaneNoiseMap>,
 }
@@ -38,7 +38,7 @@ pub struct NoiseMaps {
 impl NoiseMaps {
     /// The maps of the solves the filter is given (after exclusion), over `matches` between
     /// the `previous` epoch's planes and the current one's.
-    pub fn new(
+    pub(crate) fn new(
         rotation: Option<&Solution>,
         displacement: Option<&Solution>,
         matches: &[PlaneMatch],
@@ -96,7 +96,7 @@ impl NoiseMaps {
     /// What this relative pose shares with the previous one, whose maps of the same planes
     /// (then its current ones) are `earlier`, with every covariance scaled by `scale` as the
     /// measurement's own.
-    pub fn shared_noise(
+    pub(crate) fn shared_noise(
         &self,
         earlier: &[PlaneNoiseMap],
         previous: &[Plane],

@@ -51,7 +51,7 @@ impl IntegrityConfig {
     }
 
     /// Adds every problem of the table to `errors`.
-    pub fn check(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check(&self, errors: &mut ConfigErrors) {
         let mut integrity = errors.table("integrity");
         for (key, value) in [
             ("false_alarm_probability", self.false_alarm_probability),

@@ -39,7 +39,7 @@ use serde::{Serialize, Serializer};
 const INSEPARABLE_CORRELATION: f64 = 0.999;
 
 /// Re-solves a solve with the given planes (ids of the epoch) left out.
-pub type Resolver<'a> = dyn FnMut(&[usize]) -> Result<Solution, SolveError> + 'a;
+pub(crate) type Resolver<'a> = dyn FnMut(&[usize]) -> Result<Solution, SolveError> + 'a;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -102,17 +102,14 @@ impl IntegrityMonitor {
         })
     }
 
-    pub fn config(&self) -> &IntegrityConfig {
-        &self.config
-    }
-
     /// Test one system with the whole false-alarm budget, without excluding anything.
     pub fn test(&self, kind: SolveKind, system: &LinearSystem) -> Result<SolveTest, Untestable> {
         self.test_with(&self.alone, kind, system)
     }
 
     /// Detect and exclude on one solve checked on its own.
-    pub fn check_solve(
+    #[cfg(test)]
+    pub(crate) fn check_solve(
         &self,
         kind: SolveKind,
         first: Result<Solution, SolveError>,

@@ -13,11 +13,10 @@ mod protection;
 mod thresholds;
 
 pub use config::{IntegrityConfig, MIN_PLANES_DISPLACEMENT, MIN_PLANES_ROTATION};
-pub use exclusion::{
-    without_planes, EpochReport, IntegrityMonitor, Resolver, SolveKind, SolveReport,
-};
+pub use exclusion::without_planes;
+pub(crate) use exclusion::{EpochReport, SolveReport};
+pub use exclusion::{IntegrityMonitor, SolveKind};
 pub use parity::{parity_space, ParitySpace, PlaneTest, SolveTest, Untestable};
-pub use protection::ProtectionLevels;
 pub use thresholds::{chi_square_upper_quantile, normal_upper_quantile, Thresholds};
 
 #[cfg(test)]

@@ -76,7 +76,8 @@ pub struct ParitySpace {
 
 impl ParitySpace {
     /// `V = G L`: orthonormal basis of the left null space of the whitened geometry `L^-1 H`.
-    pub fn basis(&self) -> DMatrix<f64> {
+    #[cfg(test)]
+    pub(crate) fn basis(&self) -> DMatrix<f64> {
         &self.parity_map * &self.square_root
     }
 }
@@ -100,12 +101,12 @@ pub struct PlaneTest {
 }
 
 impl PlaneTest {
-    pub fn fired(&self) -> bool {
+    pub(crate) fn fired(&self) -> bool {
         self.normalised_residual.abs() > self.threshold
     }
 
     /// How far past (> 1) or short of (< 1) its threshold the plane's statistic is.
-    pub fn severity(&self) -> f64 {
+    pub(crate) fn severity(&self) -> f64 {
         self.normalised_residual.abs() / self.threshold
     }
 }
@@ -144,12 +145,13 @@ pub struct SolveTest {
 }
 
 impl SolveTest {
-    pub fn global_fired(&self) -> bool {
+    #[cfg(test)]
+    pub(crate) fn global_fired(&self) -> bool {
         self.chi_square > self.chi_square_threshold
     }
 
     /// The plane with the largest statistic relative to its threshold: the one to exclude.
-    pub fn most_suspect(&self) -> Option<&PlaneTest> {
+    pub(crate) fn most_suspect(&self) -> Option<&PlaneTest> {
         self.planes
             .iter()
             .filter(|plane| plane.dof > 0)
@@ -164,7 +166,7 @@ impl SolveTest {
     /// and the test fired: how alike a fault on one moves both statistics (the largest
     /// singular value of `W_a^T W_b`; 0 when either plane cannot be tested). Near 1 the
     /// largest-residual rule cannot tell the two apart.
-    pub fn correlation(&self, a: usize, b: usize) -> Option<f64> {
+    pub(crate) fn correlation(&self, a: usize, b: usize) -> Option<f64> {
         let columns = |id| {
             let index = self.planes.iter().position(|plane| plane.plane == id)?;
             self.signature_columns.get(index).copied()
@@ -353,7 +355,7 @@ fn lower_triangular_inverse(l: &DMatrix<f64>) -> DMatrix<f64> {
 }
 
 /// Test one solve's system: global chi-square on `p`, and each plane's w-test.
-pub fn test_system(
+pub(crate) fn test_system(
     system: &LinearSystem,
     thresholds: &Thresholds,
     min_planes: usize,

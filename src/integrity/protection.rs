@@ -26,7 +26,7 @@ pub struct ProtectionLevels {
     pub worst_plane: [Option<usize>; 3],
 }
 
-pub fn protection_levels(
+pub(crate) fn protection_levels(
     planes: &[PlaneTest],
     estimate_sigmas: &[f64; 3],
     thresholds: &Thresholds,

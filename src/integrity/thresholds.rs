@@ -58,7 +58,7 @@ impl Thresholds {
     }
 
     /// Threshold of the global test: `|p|^2` of the whitened parity vector with `dof` components.
-    pub fn global(&self, dof: usize) -> f64 {
+    pub(crate) fn global(&self, dof: usize) -> f64 {
         match self.global.get(dof.wrapping_sub(1)) {
             Some(&threshold) => threshold,
             None => chi_square_upper_quantile(dof, self.false_alarm / 2.0),
@@ -73,7 +73,7 @@ impl Thresholds {
 
     /// Threshold (eq 39's gamma) on one plane's normalised residual, the square root of its
     /// chi-square statistic with `plane_dof` testable rows, when `tests` planes are tested.
-    pub fn per_plane(&self, plane_dof: usize, tests: usize) -> f64 {
+    pub(crate) fn per_plane(&self, plane_dof: usize, tests: usize) -> f64 {
         let cached = self.per_plane.get(plane_dof.wrapping_sub(1));
         match cached.and_then(|by_tests| by_tests.get(tests.wrapping_sub(1))) {
             Some(&threshold) => threshold,

@@ -14,11 +14,11 @@ use serde::Serialize;
 use std::fmt;
 
 /// Translational biases tried, metres.
-pub const TRANSLATION_BIASES_M: [f64; 5] = [0.02, 0.05, 0.1, 0.15, 0.2];
+pub(crate) const TRANSLATION_BIASES_M: [f64; 5] = [0.02, 0.05, 0.1, 0.15, 0.2];
 /// The translational bias whose test statistics are kept for the histogram (paper Fig. 7).
-pub const HISTOGRAM_BIAS_M: f64 = 0.1;
+pub(crate) const HISTOGRAM_BIAS_M: f64 = 0.1;
 /// Rotational biases tried, degrees.
-pub const ROTATION_BIASES_DEG: [f64; 5] = [1.0, 2.0, 4.0, 6.0, 8.0];
+pub(crate) const ROTATION_BIASES_DEG: [f64; 5] = [1.0, 2.0, 4.0, 6.0, 8.0];
 /// A plane is studied when it is matched in at least this share of fault-free pairs.
 const MIN_SEEN_SHARE: f64 = 0.5;
 
@@ -133,7 +133,7 @@ pub struct IntegrityCheckReport {
 }
 
 impl IntegrityCheckReport {
-    pub fn to_json(&self) -> String {
+    pub(crate) fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).expect("the report holds only plain data")
     }
 

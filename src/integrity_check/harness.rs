@@ -51,7 +51,7 @@ pub enum Fault {
 }
 
 impl Fault {
-    pub fn patch(&self) -> usize {
+    pub(crate) fn patch(&self) -> usize {
         match *self {
             Self::Translate { patch, .. } | Self::Rotate { patch, .. } => patch,
         }
@@ -93,7 +93,7 @@ impl Rig {
         })
     }
 
-    pub fn scenario(&self) -> &Scenario {
+    pub(crate) fn scenario(&self) -> &Scenario {
         &self.scenario
     }
 
@@ -149,7 +149,7 @@ impl Rig {
     }
 
     /// Stages `fault` from the start of epoch j, or removes every staged fault (`None`).
-    pub fn stage(&mut self, fault: Option<Fault>) {
+    pub(crate) fn stage(&mut self, fault: Option<Fault>) {
         self.sim.scene = self.scenario.scene.clone();
         let Some(fault) = fault else { return };
         let at_s = self.epoch_times[1];
@@ -181,7 +181,7 @@ impl Rig {
     }
 
     /// Solves the pair with the planes associated by their labels.
-    pub fn solve(&self, i: &LabelledEpoch, j: &LabelledEpoch) -> OdometryEpoch {
+    pub(crate) fn solve(&self, i: &LabelledEpoch, j: &LabelledEpoch) -> OdometryEpoch {
         let template = OdometryEpoch {
             matches: associate(i, j),
             prior: self.true_relative_pose(i, j),

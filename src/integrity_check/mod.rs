@@ -7,10 +7,10 @@ mod check;
 mod harness;
 mod pairs;
 
+pub(crate) use check::IntegrityCheckReport;
 pub use check::{
     integrity_check, integrity_check_with_progress, pairs_to_run, plane_figures, studied_planes,
-    DetectionRow, FalseAlarms, IntegrityCheckArgs, IntegrityCheckReport, PlaneDetection,
-    PlaneFigures, RowFigures, TestStatistics, ROTATION_BIASES_DEG, TRANSLATION_BIASES_M,
+    DetectionRow, IntegrityCheckArgs, PlaneFigures,
 };
 pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
 pub use pairs::{check_pair, run_pair, PairOutcome};

@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 
 /// Body pose at a beam's time relative to the body at the epoch's reference time:
 /// `p_ref = pose_at(t) * p_body(t)`. Identity for a stationary body.
-pub type PoseAt<'a> = &'a dyn Fn(f64) -> Isometry3<f64>;
+pub(crate) type PoseAt<'a> = &'a dyn Fn(f64) -> Isometry3<f64>;
 
 /// One valid reading, ready for line extraction (2-D) and plane fitting (3-D).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,7 +42,8 @@ pub struct DroppedReadings {
 }
 
 impl DroppedReadings {
-    pub fn total(&self) -> u32 {
+    #[cfg(test)]
+    pub(crate) fn total(&self) -> u32 {
         self.not_a_number + self.zero + self.error_code + self.out_of_range
     }
 
@@ -68,7 +69,7 @@ impl DroppedReadings {
 /// scanner-to-reference map interpolated linearly between samples: over such an interval the
 /// motion is linear far below the ranging noise (1e-8 rad of curvature at 1 rad/s), and
 /// evaluating an IMU-driven pose function per beam would dominate the epoch.
-pub const POSE_SAMPLE_READINGS: usize = 16;
+pub(crate) const POSE_SAMPLE_READINGS: usize = 16;
 
 /// Beam geometry of one reading, fixed for a scanner, its mount and the scan's step layout.
 #[derive(Debug, Clone, Copy)]

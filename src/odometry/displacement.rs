@@ -61,7 +61,7 @@ impl PlaneRow {
 }
 
 /// Weighted least squares for dR, leaving out the matches listed in `excluded`.
-pub fn solve_displacement(
+pub(crate) fn solve_displacement(
     previous: &[Plane],
     current: &[Plane],
     matches: &[PlaneMatch],

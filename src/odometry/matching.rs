@@ -22,14 +22,14 @@ pub struct PlaneMatch {
 
 /// Reusable buffers for the assignment.
 #[derive(Debug, Default)]
-pub struct Matcher {
+pub(crate) struct Matcher {
     candidates: Vec<PlaneMatch>,
     taken: [Vec<bool>; 2],
 }
 
 impl Matcher {
     /// Fills `out` (cleared first) with one-to-one matches, cheapest first, sorted by `previous`.
-    pub fn match_planes(
+    pub(crate) fn match_planes(
         &mut self,
         previous: &[Plane],
         current: &[Plane],
@@ -74,14 +74,14 @@ impl Matcher {
 /// Chi-square gates of a match: on the normal and distance together (3 degrees of freedom) and
 /// on the normal alone (2).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MatchGates {
+pub(crate) struct MatchGates {
     pub total_chi2: f64,
     pub normal_chi2: f64,
 }
 
 impl MatchGates {
     /// Whether a pair with these terms passes both gates.
-    pub fn admit(&self, terms: &MahalanobisTerms) -> bool {
+    pub(crate) fn admit(&self, terms: &MahalanobisTerms) -> bool {
         terms.normal <= self.normal_chi2 && terms.normal + terms.distance <= self.total_chi2
     }
 }
@@ -89,7 +89,7 @@ impl MatchGates {
 /// Whether some plane of `previous` (epoch i) passes `gates` with `plane` (of epoch j) under
 /// `prior`, whatever else it matches: the one-to-one assignment is for solving, and a surface
 /// seen as two planes at j is still one surface at i.
-pub fn has_counterpart(
+pub(crate) fn has_counterpart(
     previous: &[Plane],
     plane: &Plane,
     prior: &RelativePose,
@@ -103,14 +103,14 @@ pub fn has_counterpart(
 /// The normal's (2 degrees of freedom) and the distance's (1) share of the squared Mahalanobis
 /// distance between plane i and plane j predicted into frame i.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MahalanobisTerms {
+pub(crate) struct MahalanobisTerms {
     pub normal: f64,
     pub distance: f64,
 }
 
 /// The squared Mahalanobis terms of plane j predicted into frame i, or None if they face
 /// opposite ways.
-pub fn mahalanobis_terms(
+pub(crate) fn mahalanobis_terms(
     plane_i: &Plane,
     plane_j: &Plane,
     prior: &RelativePose,

@@ -106,20 +106,15 @@ impl Default for OdometryConfig {
 
 impl OdometryConfig {
     /// The two match gates, as the matcher takes them.
-    pub fn match_gates(&self) -> MatchGates {
+    pub(crate) fn match_gates(&self) -> MatchGates {
         MatchGates {
             total_chi2: self.match_gate_chi2,
             normal_chi2: self.match_normal_gate_chi2,
         }
     }
 
-    /// Every problem of the table, one line each.
-    pub fn validate(&self) -> Result<(), ConfigErrors> {
-        ConfigErrors::collect(|errors| self.check(errors))
-    }
-
     /// Adds every problem of the table to `errors`.
-    pub fn check(&self, errors: &mut ConfigErrors) {
+    pub(crate) fn check(&self, errors: &mut ConfigErrors) {
         let mut odometry = errors.table("odometry");
         let positive = "set it to a finite number above 0";
         let checks = [
@@ -208,7 +203,7 @@ impl OdometryConfig {
     }
 
     /// Line-extraction parameters for a scanner with this ranging sigma.
-    pub fn line_parameters(&self, range_sigma_m: f64) -> LineParameters {
+    pub(crate) fn line_parameters(&self, range_sigma_m: f64) -> LineParameters {
         LineParameters {
             breakpoint_lambda_rad: self.breakpoint_lambda_deg.to_radians(),
             breakpoint_noise_m: self.breakpoint_noise_sigmas * range_sigma_m,
@@ -218,7 +213,7 @@ impl OdometryConfig {
         }
     }
 
-    pub fn plane_parameters(&self) -> PlaneParameters {
+    pub(crate) fn plane_parameters(&self) -> PlaneParameters {
         PlaneParameters {
             min_separation_m: self.min_line_separation_m,
             coplanarity_gate_sigmas: self.coplanarity_gate_sigmas,
@@ -228,7 +223,7 @@ impl OdometryConfig {
         }
     }
 
-    pub fn rotation_parameters(&self) -> RotationParameters {
+    pub(crate) fn rotation_parameters(&self) -> RotationParameters {
         RotationParameters {
             max_iterations: self.rotation_max_iterations,
             tolerance_rad: self.rotation_tolerance_rad,
@@ -358,13 +353,8 @@ impl Odometer {
         })
     }
 
-    pub fn config(&self) -> &OdometryConfig {
+    pub(crate) fn config(&self) -> &OdometryConfig {
         &self.config
-    }
-
-    /// Beams of scanner `k` from the latest extraction (for inspection and plotting).
-    pub fn beams(&self, k: usize) -> &[Beam] {
-        &self.beams[k]
     }
 
     /// Lines of scanner `k` from the latest extraction, indexing `beams(k)`.
@@ -380,7 +370,12 @@ impl Odometer {
 
     /// Planes of one epoch: `scans[k]` is scanner k's scan; `pose_at(t)` is the body pose at
     /// time t relative to the body at `t_ref` (identity when stationary).
-    pub fn extract(&mut self, scans: [&Scan; 2], t_ref: f64, pose_at: PoseAt<'_>) -> EpochPlanes {
+    pub(crate) fn extract(
+        &mut self,
+        scans: [&Scan; 2],
+        t_ref: f64,
+        pose_at: PoseAt<'_>,
+    ) -> EpochPlanes {
         let mut out = EpochPlanes::default();
         self.extract_into(scans, t_ref, pose_at, &mut out);
         out
@@ -399,7 +394,7 @@ impl Odometer {
 
     /// As `extract_into`, keeping only the planes `admit` accepts: a refused candidate does
     /// not take its lines, which stay free for the next pair.
-    pub fn extract_admitted_into(
+    pub(crate) fn extract_admitted_into(
         &mut self,
         scans: [&Scan; 2],
         t_ref: f64,

@@ -14,7 +14,7 @@ use super::uncertainty::{
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct PlaneParameters {
+pub(crate) struct PlaneParameters {
     /// Smallest distance of line 2's centre from line 1 (eq 8 degenerates when it lies on it).
     pub min_separation_m: f64,
     /// How many predicted sigmas line 2 may tilt out of the plane and still count as coplanar.
@@ -58,7 +58,7 @@ pub struct Plane {
 
 /// The lines of one scan with the beams they index and the scanner's ranging sigma.
 #[derive(Debug, Clone, Copy)]
-pub struct ScanLines<'a> {
+pub(crate) struct ScanLines<'a> {
     pub segments: &'a [Segment],
     pub beams: &'a [Beam],
     pub range_sigma: f64,
@@ -76,7 +76,7 @@ impl<'a> ScanLines<'a> {
 
 /// Reusable candidate buffers.
 #[derive(Debug, Default)]
-pub struct PlaneExtractor {
+pub(crate) struct PlaneExtractor {
     candidates: Vec<Plane>,
     used: [Vec<bool>; 2],
 }
@@ -86,7 +86,7 @@ impl PlaneExtractor {
     /// `admit` accepts; returns how many it refused whose lines were still free (their lines go
     /// to the next pairs). Only then is `unscreened` filled with the planes found without the
     /// test; it is left empty when nothing was refused, as they would be `out`.
-    pub fn extract(
+    pub(crate) fn extract(
         &mut self,
         scans: [ScanLines; 2],
         parameters: &PlaneParameters,

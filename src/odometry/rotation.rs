@@ -20,7 +20,7 @@ use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x2, UnitQuaternion, Ve
 
 /// Iteration limits of the rotation solve.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RotationParameters {
+pub(crate) struct RotationParameters {
     pub max_iterations: usize,
     /// Stop when a correction is smaller than this, radians.
     pub tolerance_rad: f64,
@@ -53,7 +53,7 @@ fn plane_rows(plane_i: &Plane, plane_j: &Plane, rotation: &UnitQuaternion<f64>) 
 }
 
 /// Gauss-Newton on SO(3) from `prior`, leaving out the matches listed in `excluded`.
-pub fn solve_rotation(
+pub(crate) fn solve_rotation(
     previous: &[Plane],
     current: &[Plane],
     matches: &[PlaneMatch],

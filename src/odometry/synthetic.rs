@@ -12,7 +12,7 @@ pub struct WorldPlane {
 }
 
 impl WorldPlane {
-    pub fn new(normal: [f64; 3], rho: f64) -> Self {
+    pub(crate) fn new(normal: [f64; 3], rho: f64) -> Self {
         Self {
             normal: Vector3::from(normal).normalize(),
             rho,

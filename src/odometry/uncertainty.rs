@@ -32,7 +32,7 @@ pub struct PlaneUncertainty {
 
 /// One line of a plane pair with the beams it was fitted to and its scanner's ranging sigma.
 #[derive(Debug, Clone, Copy)]
-pub struct LineSample<'a> {
+pub(crate) struct LineSample<'a> {
     pub segment: &'a Segment,
     pub beams: &'a [Beam],
     pub range_sigma: f64,
@@ -56,7 +56,7 @@ impl LineSample<'_> {
 /// centroid `centre`; `(c, g)` is the least-squares fit of the points' offsets, so its
 /// covariance is `A^-1 B A^-1` with `A = sum x x^T`, `B = sum var_k x x^T`, `x = [1, u]`.
 /// Then `delta n = -g` (in the tangent basis) and `delta rho = c + centre . delta n`.
-pub fn joint_plane_uncertainty(
+pub(crate) fn joint_plane_uncertainty(
     line1: &LineSample,
     line2: &LineSample,
     n: &Vector3<f64>,
@@ -94,7 +94,7 @@ pub fn joint_plane_uncertainty(
 }
 
 /// Propagates the ranging noise of both lines into the plane `(n, rho = p0 . n)`.
-pub fn plane_uncertainty(
+pub(crate) fn plane_uncertainty(
     line1: &LineSample,
     line2: &LineSample,
     n: &Vector3<f64>,

@@ -4,7 +4,7 @@
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::Shift;
 use plotters::prelude::*;
-pub use plotters::style::RGBColor;
+pub(crate) use plotters::style::RGBColor;
 
 /// Chart size in SVG pixels: wide enough for a 500 s run to show single epochs.
 const WIDTH: u32 = 960;
@@ -12,16 +12,16 @@ const HEIGHT: u32 = 280;
 /// More points than this per series only make the file heavier: a screen has fewer columns.
 const MAX_POINTS: usize = 2 * WIDTH as usize;
 
-pub const BLUE: RGBColor = RGBColor(31, 119, 180);
-pub const ORANGE: RGBColor = RGBColor(255, 127, 14);
-pub const GREEN: RGBColor = RGBColor(44, 160, 44);
-pub const RED: RGBColor = RGBColor(214, 39, 40);
-pub const PURPLE: RGBColor = RGBColor(148, 103, 189);
-pub const GREY: RGBColor = RGBColor(127, 127, 127);
+pub(crate) const BLUE: RGBColor = RGBColor(31, 119, 180);
+pub(crate) const ORANGE: RGBColor = RGBColor(255, 127, 14);
+pub(crate) const GREEN: RGBColor = RGBColor(44, 160, 44);
+pub(crate) const RED: RGBColor = RGBColor(214, 39, 40);
+pub(crate) const PURPLE: RGBColor = RGBColor(148, 103, 189);
+pub(crate) const GREY: RGBColor = RGBColor(127, 127, 127);
 
 /// How a series is drawn.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Mark {
+pub(crate) enum Mark {
     Line,
     /// A thin line for bounds such as +-3 sigma.
     Bound,
@@ -29,7 +29,7 @@ pub enum Mark {
 }
 
 #[derive(Debug, Clone)]
-pub struct Series {
+pub(crate) struct Series {
     pub name: String,
     pub color: RGBColor,
     pub mark: Mark,
@@ -37,7 +37,7 @@ pub struct Series {
 }
 
 impl Series {
-    pub fn new(name: impl Into<String>, color: RGBColor, mark: Mark) -> Self {
+    pub(crate) fn new(name: impl Into<String>, color: RGBColor, mark: Mark) -> Self {
         Self {
             name: name.into(),
             color,
@@ -46,7 +46,7 @@ impl Series {
         }
     }
 
-    pub fn with_points(mut self, points: Vec<(f64, f64)>) -> Self {
+    pub(crate) fn with_points(mut self, points: Vec<(f64, f64)>) -> Self {
         self.points = points;
         self
     }
@@ -54,7 +54,7 @@ impl Series {
 
 /// What the axes show.
 #[derive(Debug, Clone)]
-pub struct Axes {
+pub(crate) struct Axes {
     pub title: String,
     pub x_label: String,
     pub y_label: String,
@@ -65,7 +65,7 @@ pub struct Axes {
 }
 
 impl Axes {
-    pub fn over_time(title: impl Into<String>, y_label: impl Into<String>) -> Self {
+    pub(crate) fn over_time(title: impl Into<String>, y_label: impl Into<String>) -> Self {
         Self {
             title: title.into(),
             x_label: "time (s)".into(),
@@ -84,7 +84,7 @@ pub struct ChartError {
 }
 
 /// One chart as an SVG document, or `None` when no series has a point to draw.
-pub fn svg(axes: &Axes, series: &[Series]) -> Result<Option<String>, ChartError> {
+pub(crate) fn svg(axes: &Axes, series: &[Series]) -> Result<Option<String>, ChartError> {
     let drawable: Vec<Series> = series
         .iter()
         .map(|s| drawable(s, axes.log_y))

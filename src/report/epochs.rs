@@ -31,7 +31,7 @@ struct Test {
 }
 
 #[derive(Debug, Clone, PartialEq)]
-pub struct EpochRow {
+pub(crate) struct EpochRow {
     pub t: f64,
     outcome: String,
     reason: Option<String>,
@@ -73,7 +73,7 @@ impl EpochRow {
 
     /// The walls of this epoch at the platform's height, in (east, north) points: used, then
     /// excluded. `attitude` and `position` are the platform's at the epoch.
-    pub fn walls(
+    pub(crate) fn walls(
         &self,
         attitude: &UnitQuaternion<f64>,
         position: &Vector3<f64>,
@@ -121,7 +121,7 @@ fn plane(value: &Value) -> Option<(Vector3<f64>, f64)> {
 }
 
 /// All epochs of a run.
-pub struct EpochView {
+pub(crate) struct EpochView {
     rows: Vec<EpochRow>,
 }
 
@@ -135,14 +135,14 @@ const OUTCOMES: [(&str, RGBColor); 5] = [
 ];
 
 impl EpochView {
-    pub fn new(lines: &[Value]) -> Self {
+    pub(crate) fn new(lines: &[Value]) -> Self {
         Self {
             rows: lines.iter().filter_map(EpochRow::parse).collect(),
         }
     }
 
     /// The epoch with the most planes used (the first of equals): the one worth drawing.
-    pub fn showcase(&self) -> Option<&EpochRow> {
+    pub(crate) fn showcase(&self) -> Option<&EpochRow> {
         self.rows
             .iter()
             .filter(|row| !row.geometry.is_empty())
@@ -150,7 +150,7 @@ impl EpochView {
             .max_by_key(|row| row.used)
     }
 
-    pub fn integrity_section(&self, page: &mut Page) -> Result<(), ChartError> {
+    pub(crate) fn integrity_section(&self, page: &mut Page) -> Result<(), ChartError> {
         page.section(
             "Integrity",
             "The parity-space test statistic of each solve against its threshold (paper Fig. 10). \
@@ -188,7 +188,7 @@ impl EpochView {
         Ok(())
     }
 
-    pub fn planes_section(&self, page: &mut Page) -> Result<(), ChartError> {
+    pub(crate) fn planes_section(&self, page: &mut Page) -> Result<(), ChartError> {
         page.section(
             "Planes and epoch outcomes",
             "Planes built per epoch, matched with the previous epoch, used in the fused solves and \

@@ -9,13 +9,13 @@ table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #bbb;padding
 th{background:#eee}td:first-child,th:first-child{text-align:left}figure{margin:.5em 0}\
 p.note{color:#555;font-style:italic}pre{background:#f6f6f6;padding:.5em;overflow-x:auto}";
 
-pub struct Page {
+pub(crate) struct Page {
     body: String,
     title: String,
 }
 
 impl Page {
-    pub fn new(title: &str) -> Self {
+    pub(crate) fn new(title: &str) -> Self {
         let mut body = String::new();
         let _ = write!(body, "<h1>{}</h1>", escape(title));
         Self {
@@ -24,7 +24,7 @@ impl Page {
         }
     }
 
-    pub fn section(&mut self, heading: &str, text: &str) {
+    pub(crate) fn section(&mut self, heading: &str, text: &str) {
         let _ = write!(
             self.body,
             "<h2>{}</h2><p>{}</p>",
@@ -33,13 +33,18 @@ impl Page {
         );
     }
 
-    pub fn note(&mut self, text: &str) {
+    pub(crate) fn note(&mut self, text: &str) {
         let _ = write!(self.body, "<p class=\"note\">{}</p>", escape(text));
     }
 
     /// A figure with the chart, or a note saying there was nothing to draw. `data-series` names
     /// the series drawn, so that a reader (or a test) knows what the figure should hold.
-    pub fn chart(&mut self, id: &str, axes: &Axes, series: &[Series]) -> Result<(), ChartError> {
+    pub(crate) fn chart(
+        &mut self,
+        id: &str,
+        axes: &Axes,
+        series: &[Series],
+    ) -> Result<(), ChartError> {
         match chart::svg(axes, series)? {
             Some(svg) => {
                 let drawn: Vec<&str> = series
@@ -60,7 +65,7 @@ impl Page {
         Ok(())
     }
 
-    pub fn table(&mut self, header: &[&str], rows: &[Vec<String>]) {
+    pub(crate) fn table(&mut self, header: &[&str], rows: &[Vec<String>]) {
         self.body.push_str("<table><tr>");
         for cell in header {
             let _ = write!(self.body, "<th>{}</th>", escape(cell));
@@ -77,7 +82,7 @@ impl Page {
     }
 
     /// The summary table in the paper's format, then the replay's own summary in full.
-    pub fn summary(&mut self, summary: &ReplaySummary) {
+    pub(crate) fn summary(&mut self, summary: &ReplaySummary) {
         self.section("Summary", "Error statistics as the paper gives them (standard deviation per axis; attitude in mrad), the integrity monitor's work, and how honest the velocity sent to the autopilot was.");
         let per_epoch = summary.outputs.planes as f64 / summary.outputs.epochs.max(1) as f64;
         let mut rows = vec![
@@ -138,7 +143,7 @@ impl Page {
         );
     }
 
-    pub fn finish(self) -> String {
+    pub(crate) fn finish(self) -> String {
         format!(
             "<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\"><title>{}</title>\
              <style>{STYLE}</style></head><body>{}</body></html>\n",
@@ -167,7 +172,7 @@ fn strip_xml_declaration(svg: &str) -> &str {
     }
 }
 
-pub fn escape(text: &str) -> String {
+pub(crate) fn escape(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
     for c in text.chars() {
         match c {

@@ -3,12 +3,11 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{Eskf, FilterPhase, UpdateError, UpdateKind, UpdateReport};
+use super::{Eskf, FilterPhase, UpdateKind};
 use crate::filter::alignment::zero_motion_rows;
 use crate::filter::chi_square_quantile;
 use crate::filter::relative_pose::RelativePoseMeasurement;
 use crate::filter::state::{ACCEL_BIAS, ATT, VEL};
-use crate::filter::update::{Jacobian3, Observability, Stacked};
 use crate::sensors::ImuSample;
 
 impl Eskf {
@@ -107,8 +106,13 @@ impl Eskf {
         }
     }
 
-    /// Zero-velocity update on demand (e.g. the vehicle is known to be on the ground).
-    pub fn update_zero_velocity(&mut self, sigma_mps: f64) -> Result<UpdateReport, UpdateError> {
+    /// Zero-velocity update on demand: how the tests pin the velocity between two clones.
+    #[cfg(test)]
+    pub(crate) fn update_zero_velocity(
+        &mut self,
+        sigma_mps: f64,
+    ) -> Result<super::UpdateReport, super::UpdateError> {
+        use crate::filter::update::{Jacobian3, Observability, Stacked};
         let t = self.aligned_time()?;
         let mut rows = Stacked::default();
         let mut h = Jacobian3::zeros();
