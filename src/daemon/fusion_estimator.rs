@@ -5,8 +5,7 @@ use super::config::Config;
 use super::pipeline::{EpochCounts, Estimator, Outcome};
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::fusion::{EpochOutcome, EpochRecord, Fusion, FusionSettings, Sensor};
-use crate::odometry::ScannerSetup;
-use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
+use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry, ScannerSetup};
 
 /// What the fusion needs from the configuration for one scanner, geometry aside.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -6,9 +6,8 @@
 use super::StudyError;
 use crate::least_squares::SolveError;
 use crate::odometry::matching::PlaneMatch;
-use crate::odometry::{
-    EpochPlanes, Odometer, OdometryConfig, OdometryEpoch, RelativePose, ScannerSetup,
-};
+use crate::odometry::{EpochPlanes, Odometer, OdometryConfig, OdometryEpoch, RelativePose};
+use crate::sensors::ScannerSetup;
 use crate::sim::{Motion, Profile, Scenario, Simulator, Trajectory};
 use nalgebra::{Isometry3, Translation3, Vector3};
 

@@ -29,8 +29,7 @@ pub use scenario::{Scenario, ScenarioError, BUILTIN_NAMES};
 pub use scene::{Motion, Patch, PlacedPatch, Profile, Scene, TruePlane};
 pub use trajectory::{Kinematics, Oscillation, Trajectory};
 
-use crate::odometry::ScannerSetup;
-use crate::sensors::{ImuSample, Scan, TruthSample};
+use crate::sensors::{ImuSample, Scan, ScannerSetup, TruthSample};
 use imu::ImuGenerator;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
