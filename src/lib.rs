@@ -15,6 +15,5 @@ pub mod integrity_check;
 pub mod least_squares;
 pub mod odometry;
 pub mod report;
-pub mod sim;
 
 pub use ladar_sensors as sensors;

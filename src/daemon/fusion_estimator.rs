@@ -167,7 +167,7 @@ impl Estimator for FusionEstimator {
 mod tests {
     use crate::filter::eskf::FilterPhase;
     use crate::fusion::{EpochOutcome, Fusion, FusionSettings};
-    use crate::sim::{Scenario, SimEvent, Simulator};
+    use ladar_sim::{Scenario, SimEvent, Simulator};
 
     #[test]
     fn an_epoch_publishes_its_update_at_the_newest_imu_time() {
