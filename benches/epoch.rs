@@ -4,8 +4,8 @@
 
 use divan::{black_box, AllocProfiler, Bencher};
 use ladar_odometer::odometry::synthetic::{cast_scan, crossed_mounts, hallway};
-use ladar_odometer::odometry::{EpochPlanes, Odometer, OdometryConfig, RelativePose, ScannerSetup};
-use ladar_odometer::sensors::{Scan, ScannerGeometry};
+use ladar_odometer::odometry::{EpochPlanes, Odometer, OdometryConfig, RelativePose};
+use ladar_odometer::sensors::{Scan, ScannerGeometry, ScannerSetup};
 use nalgebra::{Isometry3, Vector3};
 
 #[global_allocator]

@@ -15,5 +15,5 @@ pub mod integrity_check;
 pub mod least_squares;
 pub mod odometry;
 pub mod report;
-pub mod sensors;
-pub mod sim;
+
+pub use ladar_sensors as sensors;

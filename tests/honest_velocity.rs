@@ -6,7 +6,7 @@
 
 use ladar_odometer::daemon::mavlink_out::QualityPolicy;
 use ladar_odometer::fusion::{Fusion, FusionSettings};
-use ladar_odometer::sim::{Scenario, SimEvent, Simulator};
+use ladar_sim::{Scenario, SimEvent, Simulator};
 use nalgebra::Vector3;
 
 const MESSAGE_RATE_HZ: f64 = 30.0;

@@ -570,7 +570,7 @@ fn assert_replay_output_exists(dir: &Path) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_daemon_started_45_s_into_the_hover_tells_the_autopilot_only_what_it_knows() {
     let dir = scratch("late-start");
-    let scenario = ladar_odometer::sim::Scenario::builtin("hallway-hover").unwrap();
+    let scenario = ladar_sim::Scenario::builtin("hallway-hover").unwrap();
     let text = ladar_odometer::daemon::simulate::rig_config(&scenario).unwrap();
     let config = Config::parse(&text, Path::new("hallway-hover")).unwrap();
     let scene = serve::SimulatedScene::starting_at(&scenario, 45.0).unwrap();

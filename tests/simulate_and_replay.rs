@@ -9,7 +9,7 @@ use ladar_odometer::daemon::recording::{
 use ladar_odometer::daemon::replay::{self, ReplayError, ReplayOptions};
 use ladar_odometer::daemon::simulate::{self, HANDSHAKE_S};
 use ladar_odometer::sensors::{ImuSample, Scan};
-use ladar_odometer::sim::{Scenario, SimEvent, Simulator, BUILTIN_NAMES};
+use ladar_sim::{Scenario, SimEvent, Simulator, BUILTIN_NAMES};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {

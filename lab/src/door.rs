@@ -14,7 +14,7 @@ use ladar_odometer::integrity::{chi_square_upper_quantile, IntegrityConfig, Inte
 use ladar_odometer::integrity_check::{
     check_pair, paper_config, LabelledEpoch, PairOutcome, Rig, StudyError,
 };
-use ladar_odometer::sim::{Motion, Scenario};
+use ladar_sim::{Motion, Scenario};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;

@@ -12,7 +12,7 @@ use ladar_odometer::filter::{mean_nees_interval, Eskf};
 use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
 use ladar_odometer::fusion::{Fusion, FusionError, FusionSettings};
 use ladar_odometer::sensors::TruthSample;
-use ladar_odometer::sim::{Scenario, ScenarioError, SimEvent, Simulator};
+use ladar_sim::{Scenario, ScenarioError, SimEvent, Simulator};
 
 /// Estimates are compared with truth every this many IMU samples (10 Hz at 400 Hz).
 const COMPARE_EVERY: u64 = 40;

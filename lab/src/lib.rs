@@ -1,5 +1,5 @@
-//! The lab: seeded, deterministic studies that run ladar-odometer on its simulator and produce
-//! the figures in docs/. None of it ships in the daemon; the `integrity-check` command's own
+//! The lab: seeded, deterministic studies that run ladar-odometer on its simulator (ladar-sim)
+//! and produce the figures in docs/. None of it ships in the daemon; the `integrity-check` command's own
 //! study stays in the library, and the studies here build on its harness.
 //!
 //! - `evaluate`: accuracy and NEES of the fusion on one scenario against truth;

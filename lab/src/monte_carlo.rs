@@ -18,8 +18,7 @@ use statrs::distribution::{ContinuousCDF, StudentsT};
 use crate::evaluate::{run_scenario_recorded, EvaluationError, NeesPart, NeesSample, RecordedRun};
 use ladar_odometer::filter::{mean_nees_interval, FilterConfig};
 use ladar_odometer::fusion::FusionSettings;
-use ladar_odometer::sim::Scenario;
-use ladar_odometer::sim::TriadErrors;
+use ladar_sim::{Scenario, TriadErrors};
 
 /// Where each run's IMU turn-on biases and scale factors come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

@@ -9,7 +9,7 @@ use ladar_odometer::integrity_check::{
     StudyError,
 };
 use ladar_odometer::least_squares::LinearSystem;
-use ladar_odometer::sim::{PaperBias, Patch, Scenario};
+use ladar_sim::{PaperBias, Patch, Scenario};
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use std::fmt;

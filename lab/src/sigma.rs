@@ -9,7 +9,7 @@
 use ladar_odometer::integrity_check::{paper_config, Rig, StudyError};
 use ladar_odometer::odometry::planes::Plane;
 use ladar_odometer::odometry::{Odometer, OdometryConfig};
-use ladar_odometer::sim::{PaperBias, Scenario};
+use ladar_sim::{PaperBias, Scenario};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 use std::fmt;

@@ -14,7 +14,7 @@ use ladar_lab::monte_carlo::{run_monte_carlo, MonteCarloReport, MonteCarloSettin
 use ladar_odometer::estimate::IntegrityStatus;
 use ladar_odometer::filter::RelativePoseUpdate;
 use ladar_odometer::fusion::FusionSettings;
-use ladar_odometer::sim::{Scenario, Trajectory};
+use ladar_sim::{Scenario, Trajectory};
 
 fn scenario(name: &str, duration_s: Option<f64>, skip: Option<u32>) -> Scenario {
     let mut scenario = Scenario::builtin(name).unwrap();

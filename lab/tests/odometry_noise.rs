@@ -13,7 +13,7 @@
 use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
 use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
 use ladar_odometer::fusion::FusionSettings;
-use ladar_odometer::sim::{Motion, Profile, Scenario, Trajectory};
+use ladar_sim::{Motion, Profile, Scenario, Trajectory};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 /// One fused relative pose's errors against truth, with the covariances it was fused with.

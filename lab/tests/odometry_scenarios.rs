@@ -6,7 +6,7 @@
 use ladar_odometer::integrity::{IntegrityConfig, IntegrityMonitor};
 use ladar_odometer::integrity_check::Rig;
 use ladar_odometer::odometry::{OdometryConfig, RelativePose};
-use ladar_odometer::sim::Scenario;
+use ladar_sim::Scenario;
 use nalgebra::{Matrix6, UnitQuaternion, Vector6};
 
 /// chi-square with 6 degrees of freedom: 99.9 % point.
@@ -131,7 +131,7 @@ fn assert_honest(summary: &Summary, max_under_determined_share: f64) {
 /// many times with fresh noise: every pair solves and the errors match the covariances.
 #[test]
 fn paper_sim_pairs_solve_with_honest_covariances() {
-    let scenario = Scenario::paper_sim(ladar_odometer::sim::PaperBias::None);
+    let scenario = Scenario::paper_sim(ladar_sim::PaperBias::None);
     let mut rig = Rig::new(
         &scenario,
         21,

@@ -5,8 +5,7 @@ use super::config::Config;
 use super::pipeline::{EpochCounts, Estimator, Outcome};
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::fusion::{EpochOutcome, EpochRecord, Fusion, FusionSettings, Sensor};
-use crate::odometry::ScannerSetup;
-use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
+use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry, ScannerSetup};
 
 /// What the fusion needs from the configuration for one scanner, geometry aside.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -168,7 +167,7 @@ impl Estimator for FusionEstimator {
 mod tests {
     use crate::filter::eskf::FilterPhase;
     use crate::fusion::{EpochOutcome, Fusion, FusionSettings};
-    use crate::sim::{Scenario, SimEvent, Simulator};
+    use ladar_sim::{Scenario, SimEvent, Simulator};
 
     #[test]
     fn an_epoch_publishes_its_update_at_the_newest_imu_time() {

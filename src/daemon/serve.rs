@@ -93,7 +93,7 @@ impl Scene for StillRoom {
 /// A scenario's world and trajectory, measured in real time: the simulator's ray-cast scans at
 /// the asked step-0 time, and its noise-free IMU kinematics.
 pub struct SimulatedScene {
-    simulator: crate::sim::Simulator,
+    simulator: ladar_sim::Simulator,
     imu_to_body: nalgebra::UnitQuaternion<f64>,
     /// Scenario time at the emulators' start, s.
     start_s: f64,
@@ -103,17 +103,17 @@ impl SimulatedScene {
     /// The scenario from `start_s` seconds on: a daemon connecting then starts in the middle
     /// of it.
     pub fn starting_at(
-        scenario: &crate::sim::Scenario,
+        scenario: &ladar_sim::Scenario,
         start_s: f64,
-    ) -> Result<Self, crate::sim::ScenarioError> {
+    ) -> Result<Self, ladar_sim::ScenarioError> {
         Ok(Self {
             start_s,
             ..Self::new(scenario)?
         })
     }
 
-    pub(crate) fn new(scenario: &crate::sim::Scenario) -> Result<Self, crate::sim::ScenarioError> {
-        let simulator = crate::sim::Simulator::new(scenario)?;
+    pub(crate) fn new(scenario: &ladar_sim::Scenario) -> Result<Self, ladar_sim::ScenarioError> {
+        let simulator = ladar_sim::Simulator::new(scenario)?;
         let imu_to_body = simulator
             .imu()
             .map_or_else(nalgebra::UnitQuaternion::identity, |imu| {
@@ -155,7 +155,7 @@ impl Scene for SimulatedScene {
 #[derive(Debug, thiserror::Error)]
 pub enum ServeError {
     #[error("{0}")]
-    Scenario(#[from] crate::sim::ScenarioError),
+    Scenario(#[from] ladar_sim::ScenarioError),
     #[error("{0}")]
     Simulate(#[from] super::simulate::SimulateError),
     #[error("cannot write {path}: {source}")]
@@ -216,7 +216,7 @@ pub async fn serve_until_cancelled(
                 start_s,
                 scanner_tcp,
             } => {
-                let scenario = crate::sim::Scenario::resolve(name)?;
+                let scenario = ladar_sim::Scenario::resolve(name)?;
                 let mut text = super::simulate::rig_config(&scenario)?;
                 if let Some((host, port)) = scanner_tcp {
                     for (i, scanner) in scenario.scanners.iter().enumerate() {

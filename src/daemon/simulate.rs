@@ -13,9 +13,7 @@ use super::readings::geometry_from;
 use super::recording::{Encoding, Recorder, RecordingError};
 use crate::filter::FilterConfig;
 use crate::sensors::{ImuSample, ScannerGeometry, TruthSample};
-use crate::sim::{
-    ImuOutput, Oscillation, Scenario, ScenarioError, SimEvent, Simulator, Trajectory,
-};
+use ladar_sim::{ImuOutput, Oscillation, Scenario, ScenarioError, SimEvent, Simulator, Trajectory};
 use std::path::Path;
 
 /// Host seconds given to the handshake before simulated time 0.

@@ -21,8 +21,8 @@ pub(crate) use record::{EpochOutcome, EpochRecord};
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::{Eskf, FilterPhase, ImuOutcome};
 use crate::integrity::IntegrityMonitor;
-use crate::odometry::{EpochPlanes, Odometer, ScannerSetup};
-use crate::sensors::{ImuSample, Scan};
+use crate::odometry::{EpochPlanes, Odometer};
+use crate::sensors::{ImuSample, Scan, ScannerSetup};
 
 /// A source whose staleness the daemon's watchdog reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

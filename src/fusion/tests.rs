@@ -1,6 +1,6 @@
 use super::*;
 use crate::sensors::{Mount, ScannerGeometry};
-use crate::sim::{Scenario, SimEvent, Simulator};
+use ladar_sim::{Scenario, SimEvent, Simulator};
 
 fn setups() -> [ScannerSetup; 2] {
     [0.0, -30.0].map(|pitch| ScannerSetup {

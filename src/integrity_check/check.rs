@@ -9,7 +9,7 @@ use super::pairs::{run_pair, PairOutcome};
 use super::{paper_config, StudyError};
 use crate::integrity::{IntegrityConfig, IntegrityMonitor, SolveKind, SolveTest};
 use crate::odometry::tangent_basis;
-use crate::sim::Scenario;
+use ladar_sim::Scenario;
 use serde::Serialize;
 use std::fmt;
 

@@ -6,10 +6,9 @@
 use super::StudyError;
 use crate::least_squares::SolveError;
 use crate::odometry::matching::PlaneMatch;
-use crate::odometry::{
-    EpochPlanes, Odometer, OdometryConfig, OdometryEpoch, RelativePose, ScannerSetup,
-};
-use crate::sim::{Motion, Profile, Scenario, Simulator, Trajectory};
+use crate::odometry::{EpochPlanes, Odometer, OdometryConfig, OdometryEpoch, RelativePose};
+use crate::sensors::ScannerSetup;
+use ladar_sim::{Motion, Profile, Scenario, Simulator, Trajectory};
 use nalgebra::{Isometry3, Translation3, Vector3};
 
 /// Prior sigmas around the true relative pose: an IMU-grade prior over one second. With truth

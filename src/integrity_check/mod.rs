@@ -16,7 +16,7 @@ pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig
 pub use pairs::{check_pair, run_pair, PairOutcome};
 
 use crate::odometry::OdometryConfig;
-use crate::sim::ScenarioError;
+use ladar_sim::ScenarioError;
 use thiserror::Error;
 
 /// Why a study could not run; Display is one line naming the problem and the fix.

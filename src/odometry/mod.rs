@@ -21,7 +21,7 @@ pub(crate) mod uncertainty;
 
 use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};
-use crate::sensors::{Mount, Scan, ScannerGeometry};
+use crate::sensors::{Scan, ScannerSetup};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{MatchGates, Matcher, PlaneMatch};
@@ -229,15 +229,6 @@ impl OdometryConfig {
             tolerance_rad: self.rotation_tolerance_rad,
         }
     }
-}
-
-/// One scanner as the core needs it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ScannerSetup {
-    pub geometry: ScannerGeometry,
-    pub mount: Mount,
-    /// Ranging noise, 1 sigma, metres; `None` takes `OdometryConfig::range_sigma_m`.
-    pub range_sigma_m: Option<f64>,
 }
 
 /// Relative pose between epochs i and j with its uncertainty: a prior (from the IMU) or a result.

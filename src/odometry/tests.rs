@@ -5,6 +5,7 @@ use super::synthetic::{cast_scan, crossed_mounts, hallway, WorldPlane};
 use super::*;
 use crate::odometry::displacement::solve_displacement;
 use crate::odometry::uncertainty::PlaneUncertainty;
+use crate::sensors::{Mount, ScannerGeometry};
 use nalgebra::{Isometry3, Translation3};
 use proptest::prelude::*;
 use rand::SeedableRng;

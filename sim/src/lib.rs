@@ -1,9 +1,12 @@
 //! Ray-cast scanners, IMU and moving scene with ground truth: a pure, deterministic simulator.
+//! It speaks the sensor vocabulary of [`ladar_sensors`] and knows nothing of the odometer it
+//! feeds: the daemon's `simulate` and `serve-emulators` commands, the integrity check, the lab's
+//! studies and the tests use it.
 //!
 //! Frames follow docs/design.md, "Frames" (NED navigation, FRD body, scanner mounts as
-//! `sensors::Mount`). Gravity is the constant standard value [`GRAVITY`] along NED +z, and the
-//! Earth does not rotate: a still IMU measures zero rate and a specific force of -g along NED z.
-//! Events stream in time order, so a 500 s scenario never sits in memory.
+//! [`ladar_sensors::Mount`]). Gravity is the constant standard value [`GRAVITY`] along NED +z,
+//! and the Earth does not rotate: a still IMU measures zero rate and a specific force of -g along
+//! NED z. Events stream in time order, so a 500 s scenario never sits in memory.
 //!
 //! Conventions the consumers must match:
 //! - IMU samples are in the IMU frame (NED-flagged); the IMU sits at the body origin. `Delta`
@@ -29,9 +32,8 @@ pub use scenario::{Scenario, ScenarioError, BUILTIN_NAMES};
 pub use scene::{Motion, Patch, PlacedPatch, Profile, Scene, TruePlane};
 pub use trajectory::{Kinematics, Oscillation, Trajectory};
 
-use crate::odometry::ScannerSetup;
-use crate::sensors::{ImuSample, Scan, TruthSample};
 use imu::ImuGenerator;
+use ladar_sensors::{ImuSample, Scan, ScannerSetup, TruthSample};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use scene::CastScene;

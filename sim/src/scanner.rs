@@ -3,7 +3,7 @@
 
 use super::scene::CastScene;
 use super::trajectory::Trajectory;
-use crate::sensors::{Mount, Scan, ScannerGeometry};
+use ladar_sensors::{Mount, Scan, ScannerGeometry};
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;

@@ -2,7 +2,7 @@
 //! truth, noise statistics, determinism and the built-in scenarios' plane counts.
 
 use super::*;
-use crate::sensors::ScannerGeometry;
+use ladar_sensors::ScannerGeometry;
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// A 6 m x 4 m room around the origin (walls at x = 3, x = -3, y = -2, y = 2), floor and ceiling

@@ -1,5 +1,5 @@
 //! Ray-casting cost of one simulated revolution.
-use ladar_odometer::sim::{Scenario, Simulator, Trajectory};
+use ladar_sim::{Scenario, Simulator, Trajectory};
 
 fn main() {
     divan::main();

@@ -4,7 +4,7 @@
 
 use super::trajectory::{euler_to_quaternion, Trajectory};
 use super::GRAVITY;
-use crate::sensors::ImuSample;
+use ladar_sensors::ImuSample;
 use nalgebra::{UnitQuaternion, Vector3};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};

@@ -6,7 +6,7 @@ use super::scanner::{ScannerConfig, ScannerModel};
 use super::scenario::Scenario;
 use super::scene::{Motion, Patch, Profile, Scene};
 use super::trajectory::{Oscillation, Trajectory};
-use crate::sensors::ScannerGeometry;
+use ladar_sensors::ScannerGeometry;
 use nalgebra::{UnitQuaternion, Vector3};
 
 /// The paper's sec. 4.1 bias experiments, applied to plane 2 at epoch 1 (t = 1 s).

@@ -267,7 +267,7 @@ mod tests {
 
     #[test]
     fn bundled_scenario_files_match_the_builtins() {
-        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenarios");
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../data/scenarios");
         for name in BUILTIN_NAMES {
             let path = dir.join(format!("{name}.toml"));
             let from_file = Scenario::resolve(path.to_str().unwrap()).unwrap();

@@ -1,6 +1,10 @@
-//! Measurement types shared by the simulator, the driver adapters, the geometry core and the
-//! filter. Frames and conventions follow docs/design.md, "Frames": body FRD, navigation NED, times
-//! in seconds on the host monotonic clock.
+//! The sensor vocabulary: what a driver's output means in metres, seconds and frames (scanner
+//! geometry, mounts, scans, IMU samples, ground truth). The daemon turns the drivers' readings
+//! into these types and its geometry core and filter take them; the simulator makes them. Shared
+//! by both, so that neither depends on the other.
+//!
+//! Frames and conventions follow docs/design.md, "Frames": body FRD, navigation NED, times in
+//! seconds on the host monotonic clock.
 
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -115,6 +119,15 @@ impl Mount {
     pub fn to_body(&self, p_sensor: &Vector3<f64>) -> Vector3<f64> {
         self.rotation * p_sensor + self.translation
     }
+}
+
+/// One scanner as the core needs it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ScannerSetup {
+    pub geometry: ScannerGeometry,
+    pub mount: Mount,
+    /// Ranging noise, 1 sigma, metres; `None` takes `OdometryConfig::range_sigma_m`.
+    pub range_sigma_m: Option<f64>,
 }
 
 /// One revolution of one scanner, in metres, exactly as the device reported it: error codes,
