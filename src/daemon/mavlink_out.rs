@@ -280,7 +280,7 @@ fn time_usec(t: f64) -> u64 {
 }
 
 /// Upper triangle (row-major) of a 6x6 whose diagonal blocks are `a` and `b`: autopilots read
-/// the variances at [0], [6], [11] and [15], [18], [20].
+/// the variances at indices 0, 6, 11 and 15, 18, 20.
 pub(crate) fn upper_triangle_6x6(a: &Matrix3<f64>, b: &Matrix3<f64>) -> [f32; 21] {
     let mut out = [0.0f32; 21];
     let mut k = 0;

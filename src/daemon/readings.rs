@@ -4,7 +4,7 @@
 //! runs the handshake; in replay, a bare `Receiver` of the same driver does it from the recorded
 //! bytes. Both emit the same data events from the same bytes, so the fusion cannot tell a replay
 //! from the run it recorded. What is left here is what the drivers cannot know: the scanner
-//! geometry in metres, the host time of each measurement (through a [`ClockEstimator`] per
+//! geometry in metres, the host time of each measurement (through a `ClockEstimator` per
 //! sensor), the IMU's frame conventions, and the health counts.
 //!
 //! A raw port dump has no host times (`log_time_ns == 0` on every chunk): it is timed by the

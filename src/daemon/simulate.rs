@@ -4,7 +4,7 @@
 //! rig. Replaying the file therefore exercises the same decoding as a flight.
 //!
 //! Host time runs [`HANDSHAKE_S`] ahead of simulation time: the handshake happens first, then
-//! every simulated measurement is read [`READ_LATENCY_NS`] after the simulator makes it
+//! every simulated measurement is read `READ_LATENCY_NS` after the simulator makes it
 //! available.
 
 use super::config::Config;

@@ -1,7 +1,7 @@
 //! Where the fusion's outputs go, one way for `run` and `replay`: every estimate to
 //! `trajectory.tum` and to the autopilot, every epoch to `epochs.jsonl` and to the tallies and
 //! warnings of the summary and the log. What differs between the two is only how a MAVLink
-//! message travels ([`Autopilot`]: over a channel to the link task live, serialised in line
+//! message travels (`Autopilot`: over a channel to the link task live, serialised in line
 //! with the replay) and what a failed write means (the caller's choice: `run` logs it and goes
 //! on without files, `replay` stops).
 

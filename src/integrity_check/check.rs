@@ -29,7 +29,7 @@ pub struct IntegrityCheckArgs {
     /// Fault-free pairs, and pairs per bias size.
     pub runs: usize,
     pub seed: u64,
-    /// Render as JSON rather than tables (see [`IntegrityCheckReport::render`]).
+    /// Render as JSON rather than tables (see `IntegrityCheckReport::render`).
     pub json: bool,
     pub integrity: IntegrityConfig,
 }
