@@ -466,3 +466,225 @@ pub(crate) fn bare_corridor() -> Scenario {
         scene,
     }
 }
+
+/// A person walking: a 0.5 x 1.7 m board standing on the floor from `at`, facing the way it
+/// walks (the horizontal `towards`), so that it moves along its own normal as the hallway's
+/// board does: a plane that moves, not one that slides within itself.
+fn walker(name: &str, at: [f64; 2], floor: f64, towards: [f64; 2], walk: Profile) -> Patch {
+    let direction = Vector3::new(towards[0], towards[1], 0.0).normalize();
+    Patch::new(
+        name,
+        tidy([at[0], at[1], floor - 0.85]),
+        tidy(Vector3::z().cross(&direction).into()),
+        [0.0, 0.0, 1.0],
+        [0.25, 0.85],
+    )
+    .with_motion(Motion::Translate {
+        direction: tidy(direction.into()),
+        distance_m: walk,
+    })
+}
+
+/// A 10 x 8 x 3 m room (x = -2.5 .. 7.5, y = -3 .. 5, floor 1.4 m below the start, ceiling
+/// 1.6 m above), furnished: a 0.4 m pillar, a 1.9 m bookshelf against the left wall, a table, a
+/// door in the right wall swinging into the room 0 -> 90 -> 0 deg seven times (15 s each from
+/// t = 5 s) on a corridor, and a person walking 5 m down the left of the room, towards the
+/// back wall, and back four times (22 s each from t = 20 s). The paper's rig: still for 10 s,
+/// hovering (as hallway-hover) from 10 s, then from 60 s crossing 5.1 m of the room at
+/// 0.25 m/s, 11 deg right of its heading, and hovering again at the far side until 120 s.
+pub(crate) fn open_room() -> Scenario {
+    let (ceiling, floor, door_top) = (-1.6, 1.4, -0.6);
+    let (back, front, left, right) = (-2.5, 7.5, -3.0, 5.0);
+    let doorway = [1.2, 2.1];
+    let corridor = 6.8;
+    let door = Patch::new(
+        "door",
+        tidy([
+            (doorway[0] + doorway[1]) / 2.0,
+            right,
+            (door_top + floor) / 2.0,
+        ]),
+        [1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0],
+        tidy([(doorway[1] - doorway[0]) / 2.0, (floor - door_top) / 2.0]),
+    )
+    .with_motion(Motion::Rotate {
+        pivot_m: [doorway[1], right, 0.0],
+        axis: [0.0, 0.0, 1.0],
+        angle_deg: Profile::Swing {
+            start_s: 5.0,
+            period_s: 15.0,
+            cycles: 7,
+            amplitude: 90.0,
+        },
+    });
+    let mut scene = Scene {
+        patches: vec![
+            slab("floor", [back, front], [left, right], floor),
+            slab("ceiling", [back, front], [left, right], ceiling),
+            wall("back-wall", [back, left], [back, right], ceiling, floor),
+            wall("front-wall", [front, left], [front, right], ceiling, floor),
+            wall("left-wall", [back, left], [front, left], ceiling, floor),
+            wall(
+                "right-wall-rear",
+                [back, right],
+                [doorway[0], right],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "right-wall-front",
+                [doorway[1], right],
+                [front, right],
+                ceiling,
+                floor,
+            ),
+            wall(
+                "lintel",
+                [doorway[0], right],
+                [doorway[1], right],
+                ceiling,
+                door_top,
+            ),
+            wall(
+                "corridor-wall",
+                [-2.0, corridor],
+                [5.0, corridor],
+                ceiling,
+                floor,
+            ),
+            slab("corridor-floor", [-2.0, 5.0], [right, corridor], floor),
+            slab("table", [4.8, 6.4], [3.2, 4.0], floor - 0.75),
+            door,
+            walker(
+                "person",
+                [6.5, -2.0],
+                floor,
+                [-1.0, 0.0],
+                Profile::Swing {
+                    start_s: 20.0,
+                    period_s: 22.0,
+                    cycles: 4,
+                    amplitude: 5.0,
+                },
+            ),
+        ],
+    };
+    let middle = (ceiling + floor) / 2.0;
+    let height = (floor - ceiling) / 2.0;
+    scene.add_box(
+        "pillar",
+        [3.5, -1.0, middle],
+        [0.2, 0.2, height],
+        0.0,
+        Motion::Static,
+    );
+    scene.add_box(
+        "bookshelf",
+        [1.0, left + 0.2, floor - 0.95],
+        [0.9, 0.2, 0.95],
+        0.0,
+        Motion::Static,
+    );
+    Scenario {
+        name: "open-room".into(),
+        seed: 6,
+        duration_s: 120.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Waypoints {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0, -10.0, 0.0],
+            start_s: 60.0,
+            waypoints_m: vec![[5.0, 1.0, 0.0]],
+            speed_mps: 0.25,
+            blend_s: 4.0,
+            oscillation: gentle_hover(10.0),
+        },
+        scanners: paper_rig_scanners(),
+        imu: Some(ImuConfig::default()),
+        scene,
+    }
+}
+
+/// A 20 x 12 x 4 m hall (x = -4 .. 16, y = -4 .. 8, floor 1.5 m below the start, ceiling 2.5 m
+/// above) with two 0.5 m pillars, a counter along the right wall and a person walking 12 m up
+/// the hall and back three times (40 s each from t = 15 s). The paper's rig, still for 10 s,
+/// hovering from 10 s, then from 20 s twice round a 12 x 4 m loop about the pillars at 0.6 m/s,
+/// turning 90 deg right at each corner over 4 s (up to 42 deg/s), back at the start by 131 s;
+/// hovering to 150 s.
+pub(crate) fn hall_walk() -> Scenario {
+    let (ceiling, floor) = (-2.5, 1.5);
+    let (back, front, left, right) = (-4.0, 16.0, -4.0, 8.0);
+    let mut scene = Scene {
+        patches: vec![
+            slab("floor", [back, front], [left, right], floor),
+            slab("ceiling", [back, front], [left, right], ceiling),
+            wall("back-wall", [back, left], [back, right], ceiling, floor),
+            wall("front-wall", [front, left], [front, right], ceiling, floor),
+            wall("left-wall", [back, left], [front, left], ceiling, floor),
+            wall("right-wall", [back, right], [front, right], ceiling, floor),
+            walker(
+                "person",
+                [0.0, 6.0],
+                floor,
+                [1.0, 0.0],
+                Profile::Swing {
+                    start_s: 15.0,
+                    period_s: 40.0,
+                    cycles: 3,
+                    amplitude: 12.0,
+                },
+            ),
+        ],
+    };
+    let middle = (ceiling + floor) / 2.0;
+    let height = (floor - ceiling) / 2.0;
+    for (name, x) in [("pillar-1", 4.0), ("pillar-2", 8.0)] {
+        scene.add_box(
+            name,
+            [x, 2.0, middle],
+            [0.25, 0.25, height],
+            0.0,
+            Motion::Static,
+        );
+    }
+    scene.add_box(
+        "counter",
+        [6.0, right - 0.3, floor - 0.5],
+        [1.5, 0.3, 0.5],
+        0.0,
+        Motion::Static,
+    );
+    let lap = [
+        [12.0, 0.0, 0.0],
+        [12.0, 4.0, 0.0],
+        [0.0, 4.0, 0.0],
+        [0.0, 0.0, 0.0],
+    ];
+    Scenario {
+        name: "hall-walk".into(),
+        seed: 7,
+        duration_s: 150.0,
+        truth_rate_hz: 50.0,
+        trajectory: Trajectory::Waypoints {
+            position_m: [0.0; 3],
+            rpy_deg: [0.0, -10.0, 0.0],
+            start_s: 20.0,
+            waypoints_m: [lap, lap].concat(),
+            speed_mps: 0.6,
+            blend_s: 4.0,
+            oscillation: gentle_hover(10.0),
+        },
+        scanners: paper_rig_scanners(),
+        imu: Some(ImuConfig::default()),
+        scene,
+    }
+}
+
+/// `scenario` flown with the rig of `config/default.toml` (the hallway rig: the pitched scanner
+/// also rolled 40 deg) in place of its own scanners, named `NAME-rolled`.
+pub(crate) fn with_rolled_rig(mut scenario: Scenario) -> Scenario {
+    scenario.name = format!("{}-rolled", scenario.name);
+    scenario.scanners = hallway_scanners();
+    scenario
+}

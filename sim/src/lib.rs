@@ -46,6 +46,13 @@ impl Scenario {
     pub fn paper_sim(bias: PaperBias) -> Self {
         builtin::paper_sim(bias)
     }
+
+    /// The same scene and flight with the rig of `config/default.toml`, the pitched scanner also
+    /// rolled 40 deg (hallway-hover's), in place of the scenario's scanners; named `NAME-rolled`.
+    /// Set anything else about the scanners (`skip`) after this.
+    pub fn with_rolled_rig(self) -> Self {
+        builtin::with_rolled_rig(self)
+    }
 }
 
 #[derive(Debug, Clone, PartialEq)]

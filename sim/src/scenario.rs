@@ -8,17 +8,19 @@ use super::trajectory::Trajectory;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub const BUILTIN_NAMES: [&str; 5] = [
+pub const BUILTIN_NAMES: [&str; 7] = [
     "paper-sim",
     "office-door",
     "hallway-hover",
     "hallway-flight",
     "bare-corridor",
+    "open-room",
+    "hall-walk",
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, or give a .toml file")]
+    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, or give a .toml file")]
     UnknownName(String),
     #[error("cannot read scenario file {path}: {reason}")]
     Unreadable { path: String, reason: String },
@@ -64,6 +66,8 @@ impl Scenario {
             "hallway-hover" => Ok(builtin::hallway_hover()),
             "hallway-flight" => Ok(builtin::hallway_flight()),
             "bare-corridor" => Ok(builtin::bare_corridor()),
+            "open-room" => Ok(builtin::open_room()),
+            "hall-walk" => Ok(builtin::hall_walk()),
             _ => Err(ScenarioError::UnknownName(name.to_string())),
         }
     }
@@ -185,7 +189,7 @@ mod tests {
         let err = Scenario::builtin("foo").unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, or give a .toml file"
+            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, or give a .toml file"
         );
         assert!(matches!(
             Scenario::resolve("foo"),

@@ -82,6 +82,30 @@ impl Jet {
             accel: 60.0 * u * (1.0 - u) * (1.0 - 2.0 * u) / (duration * duration),
         }
     }
+
+    /// The integral of [`Self::smooth_step`]: 0 before `start`, then a rate rising smoothly
+    /// from 0 to 1 over `duration`, then `t - start - duration / 2`. Scaled by a speed, it is
+    /// the distance covered when setting off from rest to a constant speed.
+    fn smooth_ramp(t: f64, start: f64, duration: f64) -> Self {
+        let elapsed = t - start;
+        if elapsed <= 0.0 {
+            return Self::default();
+        }
+        if elapsed >= duration {
+            return Self {
+                value: elapsed - duration / 2.0,
+                rate: 1.0,
+                accel: 0.0,
+            };
+        }
+        let u = elapsed / duration;
+        let step = Self::smooth_step(t, start, duration);
+        Self {
+            value: duration * u.powi(4) * (2.5 - 3.0 * u + u * u),
+            rate: step.value,
+            accel: step.rate,
+        }
+    }
 }
 
 /// Small hover motions: per-axis sinusoids in position (NED) and attitude (roll, pitch, yaw),
@@ -156,6 +180,22 @@ pub enum Trajectory {
         #[serde(default)]
         oscillation: Oscillation,
     },
+    /// Flight from rest at `position_m` through `waypoints_m` (NED, m) at `speed_mps`, from
+    /// `start_s`: constant speed along each leg, and every change of velocity (setting off, each
+    /// corner, the stop) a minimum-jerk blend over `blend_s`, so corners are cut and the body
+    /// stops exactly at the last waypoint. The yaw turns with the horizontal track over the same
+    /// blends (the body keeps the angle to the track it starts with). Hover motions are
+    /// superposed.
+    Waypoints {
+        position_m: [f64; 3],
+        rpy_deg: [f64; 3],
+        start_s: f64,
+        waypoints_m: Vec<[f64; 3]>,
+        speed_mps: f64,
+        blend_s: f64,
+        #[serde(default)]
+        oscillation: Oscillation,
+    },
     /// Pose jumps at `at_s` (the paper's two compensated epochs), or with `ramp_s > 0` moves
     /// over the `ramp_s` before `at_s` (minimum-jerk profile), which an IMU can follow.
     Step {
@@ -199,6 +239,26 @@ impl Trajectory {
             Self::Step { ramp_s, .. } if !(ramp_s.is_finite() && *ramp_s >= 0.0) => Some(format!(
                 "trajectory ramp_s = {ramp_s} is invalid: set a duration in seconds, 0 or more"
             )),
+            Self::Waypoints {
+                start_s,
+                waypoints_m,
+                speed_mps,
+                blend_s,
+                ..
+            } => {
+                let positive = |v: f64| v.is_finite() && v > 0.0;
+                if !(positive(*speed_mps) && positive(*blend_s) && start_s.is_finite()) {
+                    Some(format!(
+                        "trajectory speed_mps = {speed_mps}, blend_s = {blend_s}, start_s = {start_s}: speed and blend must be positive, start_s finite"
+                    ))
+                } else if waypoints_m.is_empty()
+                    || waypoints_m.iter().flatten().any(|c| !c.is_finite())
+                {
+                    Some("trajectory waypoints_m must list at least one finite position".into())
+                } else {
+                    None
+                }
+            }
             _ => None,
         }
     }
@@ -273,6 +333,24 @@ impl Trajectory {
                 e[2] = e[2].add(turn);
                 (p, e)
             }
+            Self::Waypoints {
+                position_m,
+                rpy_deg,
+                start_s,
+                waypoints_m,
+                speed_mps,
+                blend_s,
+                oscillation,
+            } => {
+                let (mut p, mut e) = hover_coordinates(t, position_m, rpy_deg, oscillation);
+                let (travel, turn) =
+                    waypoint_legs(t, position_m, *start_s, waypoints_m, *speed_mps, *blend_s);
+                for (coordinate, leg) in p.iter_mut().zip(travel) {
+                    *coordinate = coordinate.add(leg);
+                }
+                e[2] = e[2].add(turn);
+                (p, e)
+            }
             Self::Step {
                 position_m,
                 rpy_deg,
@@ -326,6 +404,48 @@ fn hover_coordinates(
     (p, e)
 }
 
+/// The displacement (NED) and the yaw turn of a waypoint flight at `t`. Leg k's velocity rises
+/// from 0 to its constant value as leg k - 1's falls to 0, over the same blend, so their sum
+/// turns the corner smoothly; each leg covers exactly its length, whatever the blends.
+fn waypoint_legs(
+    t: f64,
+    position_m: &[f64; 3],
+    start_s: f64,
+    waypoints_m: &[[f64; 3]],
+    speed_mps: f64,
+    blend_s: f64,
+) -> ([Jet; 3], Jet) {
+    let mut travel = [Jet::default(); 3];
+    let mut yaw = Jet::default();
+    let mut from = Vector3::from(*position_m);
+    let mut leg_start = start_s;
+    let mut heading: Option<f64> = None;
+    for to in waypoints_m.iter().map(|w| Vector3::from(*w)) {
+        let leg = to - from;
+        let duration = leg.norm() / speed_mps;
+        if duration == 0.0 {
+            continue;
+        }
+        let covered = Jet::smooth_ramp(t, leg_start, blend_s)
+            .add(Jet::smooth_ramp(t, leg_start + duration, blend_s).scale(-1.0));
+        for (axis, coordinate) in travel.iter_mut().enumerate() {
+            *coordinate = coordinate.add(covered.scale(leg[axis] / duration));
+        }
+        // A vertical leg has no track heading: the yaw holds.
+        if leg.xy().norm() > 1e-9 {
+            let leg_heading = leg.y.atan2(leg.x);
+            if let Some(previous) = heading {
+                let turn = (leg_heading - previous + PI).rem_euclid(TAU) - PI;
+                yaw = yaw.add(Jet::smooth_step(t, leg_start, blend_s).scale(turn));
+            }
+            heading = Some(leg_heading);
+        }
+        from = to;
+        leg_start += duration;
+    }
+    (travel, yaw)
+}
+
 /// Rz(yaw) Ry(pitch) Rx(roll), the same composition as `Mount::from_rpy_deg`.
 pub fn euler_to_quaternion(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
     UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
@@ -359,22 +479,57 @@ mod tests {
             leg_duration_s: 3.0,
             return_leg: true,
             turn_duration_s: 2.0,
-            oscillation: Oscillation {
-                position_amplitude_m: [0.03, 0.02, 0.04],
-                position_period_s: [2.1, 3.3, 1.7],
-                attitude_amplitude_deg: [3.0, 2.0, 4.0],
-                attitude_period_s: [1.9, 2.7, 3.1],
-                start_s: 0.2,
-                ramp_s: 1.0,
-            },
+            oscillation: busy_oscillation(),
+        }
+    }
+
+    fn busy_oscillation() -> Oscillation {
+        Oscillation {
+            position_amplitude_m: [0.03, 0.02, 0.04],
+            position_period_s: [2.1, 3.3, 1.7],
+            attitude_amplitude_deg: [3.0, 2.0, 4.0],
+            attitude_period_s: [1.9, 2.7, 3.1],
+            start_s: 0.2,
+            ramp_s: 1.0,
+        }
+    }
+
+    /// North, then east sinking 0.2 m (a right turn), a 1 m climb shorter than the blend (three
+    /// legs blend at once) and a diagonal leg back to the start: turns of 90 then 135 deg.
+    fn waypoint_walk(oscillation: Oscillation) -> Trajectory {
+        Trajectory::Waypoints {
+            position_m: [1.0, -0.5, -1.2],
+            rpy_deg: [2.0, -10.0, 30.0],
+            start_s: 0.5,
+            waypoints_m: vec![
+                [3.0, -0.5, -1.2],
+                [3.0, 1.5, -1.0],
+                [3.0, 1.5, -2.0],
+                [1.0, -0.5, -1.2],
+            ],
+            speed_mps: 0.8,
+            blend_s: 1.5,
+            oscillation,
         }
     }
 
     #[test]
     fn derivatives_match_central_differences() {
-        let traj = busy_flight();
+        let flight_times = [0.1, 0.7, 1.3, 2.9, 3.6, 4.4, 6.0, 8.9];
+        let walk_times = [
+            0.4, 0.9, 2.5, 3.3, 4.0, 5.6, 6.5, 7.1, 8.4, 10.2, 12.0, 14.0,
+        ];
+        for (traj, times) in [
+            (busy_flight(), &flight_times[..]),
+            (waypoint_walk(busy_oscillation()), &walk_times[..]),
+        ] {
+            assert_derivatives_match(&traj, times);
+        }
+    }
+
+    fn assert_derivatives_match(traj: &Trajectory, times: &[f64]) {
         let h = 1e-5;
-        for &t in &[0.1, 0.7, 1.3, 2.9, 3.6, 4.4, 6.0, 8.9] {
+        for &t in times {
             let k = traj.kinematics(t);
             let (before, after) = (traj.kinematics(t - h), traj.kinematics(t + h));
             let v_fd = (after.p - before.p) / (2.0 * h);
@@ -436,5 +591,68 @@ mod tests {
         let yaw_end = q_end.euler_angles().2.to_degrees();
         let expected = rpy_deg[2] + 180.0 - 360.0;
         assert!((yaw_end - expected).abs() < 1e-9, "{yaw_end}");
+    }
+
+    #[test]
+    fn waypoints_cruise_at_the_speed_turn_with_the_track_and_stop_at_the_last() {
+        let walk = waypoint_walk(Oscillation::default());
+        // Leg 1 sets off at 0.5 s and starts blending into leg 2 at 3 s.
+        let cruise = walk.kinematics(2.5);
+        assert!((cruise.v - Vector3::new(0.8, 0.0, 0.0)).norm() < 1e-12);
+        assert_eq!(cruise.a, Vector3::zeros());
+        assert!((cruise.q.euler_angles().2.to_degrees() - 30.0).abs() < 1e-9);
+        // Leg 2 (2.01 m) cruises from 4.5 s; its track heads east, 90 deg right of leg 1's.
+        let second = walk.kinematics(5.0);
+        assert!((second.v.norm() - 0.8).abs() < 1e-12);
+        assert!((second.q.euler_angles().2.to_degrees() - 120.0).abs() < 1e-9);
+        let end = walk.kinematics(30.0);
+        assert!((end.p - Vector3::new(1.0, -0.5, -1.2)).norm() < 1e-12);
+        assert_eq!((end.v, end.a), (Vector3::zeros(), Vector3::zeros()));
+        // The vertical leg holds the yaw; from east to south-west is 135 deg right.
+        let yaw_end = end.q.euler_angles().2.to_degrees();
+        assert!(
+            (yaw_end - (30.0 + 90.0 + 135.0 - 360.0)).abs() < 1e-9,
+            "{yaw_end}"
+        );
+        assert_eq!(
+            walk.kinematics(0.5).v,
+            Vector3::zeros(),
+            "at rest until start_s"
+        );
+        let fastest = (0..3000)
+            .map(|i| walk.kinematics(f64::from(i) * 0.01).v.norm())
+            .fold(0.0, f64::max);
+        assert!(
+            fastest <= 0.8 + 1e-9,
+            "corners are cut, never rushed: {fastest}"
+        );
+    }
+
+    #[test]
+    fn waypoints_need_a_speed_a_blend_and_somewhere_to_go() {
+        assert_eq!(waypoint_walk(Oscillation::default()).problem(), None);
+        let edit = |change: fn(&mut f64, &mut f64, &mut Vec<[f64; 3]>)| {
+            let mut walk = waypoint_walk(Oscillation::default());
+            let Trajectory::Waypoints {
+                speed_mps,
+                blend_s,
+                waypoints_m,
+                ..
+            } = &mut walk
+            else {
+                unreachable!()
+            };
+            change(speed_mps, blend_s, waypoints_m);
+            walk.problem()
+        };
+        assert!(edit(|speed, _, _| *speed = 0.0)
+            .unwrap()
+            .contains("speed_mps = 0"));
+        assert!(edit(|_, blend, _| *blend = -1.0)
+            .unwrap()
+            .contains("blend_s = -1"));
+        assert!(edit(|_, _, points| points.clear())
+            .unwrap()
+            .contains("waypoints_m"));
     }
 }

@@ -401,6 +401,11 @@ fn stationary_until(trajectory: &Trajectory) -> Option<f64> {
             start_s,
             oscillation,
             ..
+        }
+        | Trajectory::Waypoints {
+            start_s,
+            oscillation,
+            ..
         } => Some(if oscillates(oscillation) {
             start_s.min(oscillation.start_s)
         } else {

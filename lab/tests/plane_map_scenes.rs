@@ -1,0 +1,372 @@
+//! The scenes the plane map of issue 18 will be judged on (open-room, hall-walk, bare-corridor),
+//! each with the paper's rig and with the rolled rig of `config/default.toml`, measured with
+//! today's scan-to-scan pairs odometer: how many planes an epoch has, how often the planes leave
+//! a displacement axis unobserved, and what that costs in velocity, attitude and drift
+//! (docs/accuracy.md, "Rooms and halls: the pairs baseline").
+//!
+//! The short runs are real tests; the baseline is an `#[ignore]`d, release-mode study:
+//! `cargo test --release -p ladar-lab --test plane_map_scenes -- --ignored --nocapture --test-threads 1`.
+
+use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
+use ladar_odometer::filter::Observability;
+use ladar_odometer::fusion::record::EpochRecord;
+use ladar_odometer::fusion::FusionSettings;
+use ladar_odometer::sim::{Scenario, Simulator};
+use nalgebra::Vector3;
+use serde::Serialize;
+
+/// Every scene stands still for its first 10 s: the filter's stationary start.
+const STILL_S: f64 = 10.0;
+
+/// Seeds of the baseline; the issue's targets will need 20 runs.
+const SEEDS: [u64; 5] = [100, 101, 102, 103, 104];
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Rig {
+    /// The paper's: the UST-20LX pitched 30 deg down about the UTM-30LX's axis.
+    Paper,
+    /// `config/default.toml`'s: the UST-20LX also rolled 40 deg.
+    Rolled,
+}
+
+/// `name` with `rig` and the scanners' scan interval for `epoch_rate_hz` (4 and 10 scans/s).
+fn scenario(name: &str, rig: Rig, epoch_rate_hz: f64) -> Scenario {
+    let mut scenario = Scenario::builtin(name).unwrap();
+    if rig == Rig::Rolled {
+        scenario = scenario.with_rolled_rig();
+    }
+    if epoch_rate_hz > 4.0 {
+        for scanner in &mut scenario.scanners {
+            scanner.skip = 3;
+        }
+    }
+    scenario
+}
+
+/// The fusion as the daemon replays a simulated recording (`simulate` writes
+/// `accept_parallel_lines = true` and the still start into the rig's configuration): the
+/// paper's rig draws parallel lines on every wall square to its pitch axis.
+fn settings(epoch_rate_hz: f64) -> FusionSettings {
+    let mut settings = FusionSettings::default();
+    settings.filter.stationary_start_s = STILL_S;
+    settings.odometry.accept_parallel_lines = true;
+    settings.fusion.epoch_rate_hz = epoch_rate_hz;
+    settings
+}
+
+/// Displacement axes the planes of an epoch leave unobserved: those the fusion anchored to the
+/// filter's prior (`unobservable_displacement`), or all three when nothing was anchored and
+/// there was no solve (too few planes, or none since the chain restarted).
+fn unobserved_axes(record: &EpochRecord) -> usize {
+    let solved = record
+        .integrity
+        .as_ref()
+        .is_some_and(|report| report.displacement.solution.is_some());
+    match record.unobservable_displacement.len() {
+        0 if !solved => 3,
+        anchored => anchored,
+    }
+}
+
+/// Displacement axes the epoch gave the filter, as the fusion chooses them: none when
+/// integrity did not clear the displacement (untestable for want of redundancy, or a fault not
+/// isolable), else all but the unobserved ones and those a single plane alone observes
+/// (integrity's unprotected directions).
+fn fused_axes(record: &EpochRecord) -> usize {
+    let (Some(_), Some(report)) = (&record.displacement, &record.integrity) else {
+        return 0;
+    };
+    let unprotected = report
+        .displacement
+        .test
+        .iter()
+        .flat_map(|test| test.unprotected.iter());
+    let left_out: Vec<Vector3<f64>> = record
+        .unobservable_displacement
+        .iter()
+        .chain(unprotected)
+        .map(|&u| Vector3::from(u))
+        .collect();
+    Observability::from_unobservable(&left_out).rank()
+}
+
+/// Why an epoch gave the filter no displacement axis.
+#[derive(Debug, Clone, Copy)]
+enum Unfused {
+    /// The planes left an axis unobserved and the solve anchored it, but refused the anchored
+    /// system: along an axis unobserved for a while the anchor's sigma reaches its 0.1 m cap,
+    /// and the solve's own weighted test (`least_squares::PARALLEL_TOLERANCE`, 1e-3 of the
+    /// strongest direction) then counts that axis unobserved again.
+    AnchorRefused,
+    /// Solved, but too few planes (or too ill-conditioned) for the parity test.
+    Untestable,
+    /// No solve: too few planes, or none since the chain restarted.
+    NoSolve,
+    /// A fault not isolable, or every observed direction unprotected.
+    Other,
+}
+
+fn unfused_reason(record: &EpochRecord) -> Unfused {
+    let solve = record.integrity.as_ref().map(|report| &report.displacement);
+    let solved = solve.is_some_and(|solve| solve.solution.is_some());
+    if record.displacement.is_some() {
+        Unfused::Other
+    } else if !solved && !record.unobservable_displacement.is_empty() {
+        Unfused::AnchorRefused
+    } else if !solved {
+        Unfused::NoSolve
+    } else if solve.is_some_and(|solve| solve.untestable.is_some()) {
+        Unfused::Untestable
+    } else {
+        Unfused::Other
+    }
+}
+
+/// One run's figures after the stationary start.
+#[derive(Debug, Clone, Serialize)]
+struct Baseline {
+    epochs: usize,
+    planes_per_epoch: f64,
+    /// Epochs whose planes leave 0, 1, 2 and 3 displacement axes unobserved.
+    unobserved_axes: [usize; 4],
+    /// Share of the epochs whose planes leave at least one displacement axis unobserved.
+    unobserved_share: f64,
+    /// Epochs giving the filter 0, 1, 2 and 3 displacement axes.
+    fused_axes: [usize; 4],
+    /// Share of the epochs giving the filter fewer than three displacement axes.
+    short_share: f64,
+    /// Epochs giving it none, by `Unfused` reason in declaration order.
+    unfused: [usize; 4],
+    accuracy: AccuracyReport,
+}
+
+fn measure(scenario: &Scenario, settings: &FusionSettings) -> Baseline {
+    let (mut epochs, mut planes) = (0, 0);
+    let (mut unobserved, mut fused, mut unfused) = ([0; 4], [0; 4], [0; 4]);
+    let accuracy = run_scenario_with(scenario, settings, &mut |record, _| {
+        if record.t >= settings.filter.stationary_start_s {
+            epochs += 1;
+            planes += record.planes;
+            unobserved[unobserved_axes(record)] += 1;
+            let axes = fused_axes(record);
+            fused[axes] += 1;
+            if axes == 0 {
+                unfused[unfused_reason(record) as usize] += 1;
+            }
+        }
+    })
+    .unwrap();
+    let share = |count: usize| count as f64 / epochs.max(1) as f64;
+    Baseline {
+        epochs,
+        planes_per_epoch: share(planes),
+        unobserved_axes: unobserved,
+        unobserved_share: share(epochs - unobserved[0]),
+        fused_axes: fused,
+        short_share: share(epochs - fused[3]),
+        unfused,
+        accuracy,
+    }
+}
+
+/// Patches that at least `min_points` beams of scanner `sensor` hit in its scan from `t0`.
+fn seen_by(sim: &mut Simulator, sensor: usize, t0: f64, min_points: usize) -> Vec<String> {
+    let (_, hits) = sim.scan_labelled(sensor, t0);
+    let mut counts = vec![0usize; sim.scene.patches.len()];
+    for patch in hits.into_iter().flatten() {
+        counts[patch] += 1;
+    }
+    (0..counts.len())
+        .filter(|&p| counts[p] >= min_points)
+        .map(|p| sim.scene.patches[p].name.clone())
+        .collect()
+}
+
+/// The first `seconds` of `name` with either rig: after the still start every epoch has at
+/// least `min_planes` planes, with `mean_planes` on average, and `mean_matched` of them on
+/// average match a plane of the epoch before: the scene's surfaces are seen as planes, again
+/// and again. Whether they fuse is the baseline's question, not this test's.
+fn assert_sees_planes(
+    name: &str,
+    seconds: f64,
+    min_planes: usize,
+    mean_planes: f64,
+    mean_matched: f64,
+) {
+    for rig in [Rig::Paper, Rig::Rolled] {
+        let mut scenario = scenario(name, rig, 1.0);
+        scenario.duration_s = seconds;
+        let mut records = Vec::new();
+        run_scenario_with(&scenario, &settings(1.0), &mut |record, _| {
+            if record.t >= STILL_S {
+                records.push(record.clone());
+            }
+        })
+        .unwrap();
+        let fewest = records.iter().map(|r| r.planes).min().unwrap_or(0);
+        let per_epoch = |count: fn(&EpochRecord) -> usize| {
+            records.iter().map(count).sum::<usize>() as f64 / records.len() as f64
+        };
+        let (planes, matched) = (per_epoch(|r| r.planes), per_epoch(|r| r.matched));
+        println!(
+            "{name} {rig:?}: {} epochs, {fewest} planes at least, {planes:.1} on average, {matched:.1} matched",
+            records.len()
+        );
+        assert!(records.len() as f64 >= seconds - STILL_S - 1.0);
+        assert!(
+            fewest >= min_planes && planes >= mean_planes && matched >= mean_matched,
+            "{name} {rig:?}"
+        );
+    }
+}
+
+#[test]
+fn open_room_shows_its_door_person_and_furniture_and_the_odometer_planes() {
+    let mut sim = Simulator::new(&Scenario::builtin("open-room").unwrap()).unwrap();
+    let level = seen_by(&mut sim, 0, 0.5, 10);
+    for surface in [
+        "front-wall",
+        "left-wall",
+        "door",
+        "pillar.-x",
+        "bookshelf.+y",
+    ] {
+        assert!(level.iter().any(|s| s == surface), "{level:?}");
+    }
+    // The door open (t = 12.5 s) shows the corridor; at t = 31 s the person is 2.5 m away,
+    // at the near end of the walk.
+    assert!(seen_by(&mut sim, 0, 12.5, 10).contains(&"corridor-wall".into()));
+    let pitched = seen_by(&mut sim, 1, 31.0, 10);
+    assert!(pitched.iter().any(|s| s == "person"), "{pitched:?}");
+    // Crossing the room: the body is at the far side, still, by 90 s.
+    let end = sim.truth_at(90.0);
+    assert!(
+        (end.p.xy() - nalgebra::Vector2::new(5.0, 1.0)).norm() < 0.1,
+        "{}",
+        end.p
+    );
+    assert!((sim.truth_at(72.0).v.norm() - 0.25).abs() < 0.05);
+    assert_sees_planes("open-room", 60.0, 2, 2.5, 1.5);
+}
+
+#[test]
+fn hall_walk_loops_round_its_pillars_and_the_odometer_planes() {
+    let mut sim = Simulator::new(&Scenario::builtin("hall-walk").unwrap()).unwrap();
+    let level = seen_by(&mut sim, 0, 0.5, 10);
+    for surface in [
+        "left-wall",
+        "right-wall",
+        "back-wall",
+        "pillar-1.-x",
+        "counter.-y",
+    ] {
+        assert!(level.iter().any(|s| s == surface), "{level:?}");
+    }
+    // Halfway down the second long leg, facing back along the hall.
+    let turned = sim.truth_at(60.5);
+    assert!((turned.q.euler_angles().2.to_degrees().abs() - 180.0).abs() < 5.0);
+    assert!((turned.v.norm() - 0.6).abs() < 0.05);
+    assert!(seen_by(&mut sim, 0, 60.5, 10).contains(&"person".into()));
+    assert_sees_planes("hall-walk", 60.0, 2, 2.5, 1.5);
+}
+
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let values: Vec<f64> = values.collect();
+    values.iter().sum::<f64>() / values.len() as f64
+}
+
+/// One row of the baseline: `SEEDS` runs of one scene with one rig at one epoch rate, averaged.
+fn study(name: &str, rig: Rig, epoch_rate_hz: f64) {
+    let scenario = scenario(name, rig, epoch_rate_hz);
+    let settings = settings(epoch_rate_hz);
+    let runs: Vec<Baseline> = SEEDS
+        .iter()
+        .map(|&seed| {
+            let mut seeded = scenario.clone();
+            seeded.seed = seed;
+            let run = measure(&seeded, &settings);
+            println!(
+                "{} {epoch_rate_hz} Hz seed {seed}: {}",
+                scenario.name,
+                serde_json::to_string(&run).unwrap()
+            );
+            run
+        })
+        .collect();
+    let axis =
+        |f: fn(&AccuracyReport) -> [f64; 3], k: usize| mean(runs.iter().map(|r| f(&r.accuracy)[k]));
+    let velocity = |r: &AccuracyReport| r.velocity_error_std_ned;
+    let attitude = |r: &AccuracyReport| r.attitude_error_std_mrad;
+    let total = |f: fn(&Baseline) -> [usize; 4]| -> [usize; 4] {
+        std::array::from_fn(|k| runs.iter().map(|r| f(r)[k]).sum())
+    };
+    let unobserved = total(|r| r.unobserved_axes);
+    let fused = total(|r| r.fused_axes);
+    let unfused = total(|r| r.unfused);
+    let mut horizontal: Vec<f64> = runs
+        .iter()
+        .map(|r| r.accuracy.horizontal_error_end_m)
+        .collect();
+    horizontal.sort_by(f64::total_cmp);
+    let share =
+        |count: usize, of: [usize; 4]| 100.0 * count as f64 / of.iter().sum::<usize>() as f64;
+    let run = &runs[0].accuracy;
+    println!(
+        "| {} | {epoch_rate_hz} Hz | {:.1} | {:.0} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} / {:.0} % | {:.3}, {:.3}, {:.3} | {:.2}, {:.2}, {:.2} | {:.1} ({:.1}-{:.1}) in {:.0} s |",
+        scenario.name,
+        mean(runs.iter().map(|r| r.planes_per_epoch)),
+        share(unobserved[1] + unobserved[2] + unobserved[3], unobserved),
+        share(fused[3], fused),
+        share(fused[1] + fused[2], fused),
+        share(fused[0], fused),
+        share(unfused[0], fused),
+        share(unfused[1], fused),
+        share(unfused[2], fused),
+        share(unfused[3], fused),
+        axis(velocity, 0),
+        axis(velocity, 1),
+        axis(velocity, 2),
+        axis(attitude, 0),
+        axis(attitude, 1),
+        axis(attitude, 2),
+        horizontal[horizontal.len() / 2],
+        horizontal[0],
+        horizontal[horizontal.len() - 1],
+        run.to_s - run.from_s,
+    );
+    // The premise of issue 18: with scan-to-scan pairs these scenes leave a displacement axis
+    // unobserved in most epochs. When this fails, the scenes or the odometer changed and
+    // docs/accuracy.md's baseline is stale.
+    let unobserved_share = mean(runs.iter().map(|r| r.unobserved_share));
+    assert!(
+        unobserved_share >= 0.8,
+        "{}: {unobserved_share}",
+        scenario.name
+    );
+}
+
+fn study_scene(name: &str) {
+    for rig in [Rig::Paper, Rig::Rolled] {
+        for rate in [1.0, 10.0] {
+            study(name, rig, rate);
+        }
+    }
+}
+
+#[test]
+#[ignore]
+fn baseline_open_room() {
+    study_scene("open-room");
+}
+
+#[test]
+#[ignore]
+fn baseline_hall_walk() {
+    study_scene("hall-walk");
+}
+
+#[test]
+#[ignore]
+fn baseline_bare_corridor() {
+    study_scene("bare-corridor");
+}
