@@ -11,7 +11,7 @@ use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
 use ladar_odometer::filter::Observability;
 use ladar_odometer::fusion::record::EpochRecord;
 use ladar_odometer::fusion::FusionSettings;
-use ladar_odometer::sim::{Scenario, Simulator};
+use ladar_sim::{Scenario, Simulator};
 use nalgebra::Vector3;
 use serde::Serialize;
 

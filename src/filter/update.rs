@@ -51,8 +51,7 @@ impl Observability {
         Self { basis, rank }
     }
 
-    #[cfg(test)]
-    pub(crate) fn rank(&self) -> usize {
+    pub fn rank(&self) -> usize {
         self.rank
     }
 
