@@ -104,7 +104,7 @@ pub enum RecordingError {
         offset: u64,
         reason: String,
     },
-    #[error("recording from an unknown sensor: {path} has topic `{topic}` with message encoding `{encoding}` (expected scip2, xbus, or json on /truth)")]
+    #[error("recording from an unknown sensor: {path} has topic `{topic}` with message encoding `{encoding}` (expected scip2, xbus, json on /truth, or ROS messages: ros1 with ros1msg schemas, cdr with ros2msg)")]
     UnknownEncoding {
         path: PathBuf,
         topic: String,
