@@ -38,6 +38,10 @@ enum Command {
     Replay {
         /// Defaults to the bundled data/hallway-hover.mcap.
         recording: Option<PathBuf>,
+        /// Replay with this configuration instead of the recorded one; a ROS recording needs
+        /// one whose [[scanner]] and [imu] tables name their topics (docs/ros-data.md).
+        #[arg(long, value_name = "FILE")]
+        config: Option<PathBuf>,
         /// Write trajectory.tum, epochs.jsonl and mavlink.tlog here.
         #[arg(long, value_name = "DIR")]
         out: Option<PathBuf>,
@@ -156,6 +160,7 @@ fn main() -> ExitCode {
         }),
         Command::Replay {
             recording,
+            config,
             out,
             realtime,
             mavlink,
@@ -165,6 +170,7 @@ fn main() -> ExitCode {
             report,
         } => replay_recording(
             recording,
+            config,
             out,
             ReplayWindow {
                 realtime,
@@ -321,6 +327,7 @@ struct ReplayWindow {
 
 fn replay_recording(
     recording: Option<PathBuf>,
+    config: Option<PathBuf>,
     out: Option<PathBuf>,
     window: ReplayWindow,
     mavlink: Option<String>,
@@ -338,6 +345,7 @@ fn replay_recording(
     };
     let options = ReplayOptions {
         recording: replay::resolve_recording(recording).map_err(|e| e.to_string())?,
+        config,
         out,
         realtime: window.realtime,
         mavlink,

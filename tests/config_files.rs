@@ -166,3 +166,42 @@ fn every_sensor_device_in_the_configs_is_named_by_the_udev_rules() {
     }
     assert!(checked >= 10, "{checked}");
 }
+
+/// The backpack's mounts as cartographer_ros's backpack_2d.urdf gives them in ROS frames (FLU),
+/// turned to FRD by the half turn about x on both sides, F R F and F t.
+#[test]
+// The URDF's own numbers: 3.14 and 3.1416 there, not pi.
+#[allow(clippy::approx_constant)]
+fn the_cartographer_backpack_mounts_are_its_urdfs_in_frd() {
+    use ladar_odometer::sensors::Mount;
+    use nalgebra::{Matrix3, Rotation3, Vector3};
+    let config = load(
+        &repository("config/examples/cartographer-backpack-2d.toml"),
+        &key_file("backpack"),
+    );
+    let f = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
+    // (rpy in radians, xyz), as the URDF's joints write them.
+    let urdf = [
+        ([0.0, 0.0, 0.0], [0.1251, 0.0937, 0.05262]),
+        ([0.0, -1.57, 3.14], [0.1251, 0.0937, 0.17772]),
+        ([0.0, 0.0, 3.1416], [0.0, 0.0, 0.0]),
+    ];
+    let mounts = config
+        .scanners
+        .iter()
+        .map(|s| (s.rpy_deg, s.translation_m))
+        .chain([(config.imu.rpy_deg, config.imu.translation_m)]);
+    for (([r, p, y], xyz), (rpy_deg, translation_m)) in urdf.into_iter().zip(mounts) {
+        let want = f * Rotation3::from_euler_angles(r, p, y).matrix() * f;
+        let got = Mount::from_rpy_deg(rpy_deg, translation_m);
+        let error = (got.rotation.to_rotation_matrix().matrix() - want)
+            .abs()
+            .max();
+        // The IMU's yaw is written 180 deg, the URDF's 3.1416 rad.
+        assert!(error < 1e-4, "{rpy_deg:?}: {error}");
+        assert!((got.translation - f * Vector3::from(xyz)).norm() < 1e-12);
+    }
+    // The vertical scanner's forward beam points up, which is -z in FRD.
+    let vertical = Mount::from_rpy_deg(config.scanners[1].rpy_deg, [0.0; 3]);
+    assert!((vertical.to_body(&Vector3::x()) - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-3);
+}

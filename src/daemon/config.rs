@@ -138,6 +138,9 @@ pub struct ScannerConfig {
     pub last_step: Option<u32>,
     #[serde(default = "ScannerConfig::default_cluster")]
     pub cluster: u32,
+    /// The ROS topic of its scans, when replaying ROS data (docs/ros-data.md).
+    #[serde(default)]
+    pub topic: Option<String>,
 }
 
 impl ScannerConfig {
@@ -196,6 +199,9 @@ pub struct ImuConfig {
     pub rate_hz: u32,
     #[serde(default = "ImuConfig::default_series")]
     pub series: ImuSeries,
+    /// The ROS topic of its samples, when replaying ROS data (docs/ros-data.md).
+    #[serde(default)]
+    pub topic: Option<String>,
 }
 
 impl ImuConfig {
@@ -448,6 +454,17 @@ impl Config {
             &self.imu.name,
             "a scanner has the same name",
         );
+        if let Some(topic) = &self.imu.topic {
+            errors.table("imu").check(
+                !self
+                    .scanners
+                    .iter()
+                    .any(|s| s.topic.as_ref() == Some(topic)),
+                "topic",
+                topic,
+                "a scanner reads the same topic: each sensor has its own",
+            );
+        }
         self.fusion_settings().check_history(errors);
     }
 
@@ -666,6 +683,16 @@ fn check_scanners(scanners: &[ScannerConfig], errors: &mut ConfigErrors) {
             &scanner.name,
             "another scanner has this name",
         );
+        if let Some(topic) = &scanner.topic {
+            table.check(
+                !scanners[..i]
+                    .iter()
+                    .any(|s| s.topic.as_ref() == Some(topic)),
+                "topic",
+                topic,
+                "another scanner reads this topic: each scanner has its own",
+            );
+        }
     }
     if let [a, b, ..] = scanners {
         let normal = |s: &ScannerConfig| s.mount().rotation * nalgebra::Vector3::z();
@@ -702,6 +729,7 @@ fn check_scanner(table: &mut Table<'_>, s: &ScannerConfig) {
         s.cluster,
         "SCIP cluster counts are 1 to 99",
     );
+    check_topic(table, s.topic.as_deref());
     if let (Some(first), Some(last)) = (s.first_step, s.last_step) {
         table.check(
             first < last,
@@ -730,11 +758,24 @@ fn check_imu(imu: &ImuConfig, errors: &mut ConfigErrors) {
         Ok(_) => {}
     }
     check_mount(&mut table, &imu.rpy_deg, &imu.translation_m);
+    check_topic(&mut table, imu.topic.as_deref());
     table.check(
         (1..=2000).contains(&imu.rate_hz),
         "rate_hz",
         imu.rate_hz,
         "must be 1 to 2000 Hz (the MTi outputs at divisors of 400, 1000 or 2000 Hz)",
+    );
+}
+
+fn check_topic(table: &mut Table<'_>, topic: Option<&str>) {
+    let Some(topic) = topic else {
+        return;
+    };
+    table.check(
+        topic.len() > 1 && topic.starts_with('/') && !topic.contains(char::is_whitespace),
+        "topic",
+        topic,
+        "a ROS topic as the recording names it, from the root: \"/horizontal_laser_2d\"",
     );
 }
 
@@ -1002,6 +1043,53 @@ path = "/var/lib/ladar-odometer"
         assert!(errors
             .iter()
             .all(|e| !e.contains('\n') && e.contains("config.toml")));
+    }
+
+    fn with_topics(front: &str, tilted: &str, imu: &str) -> String {
+        VALID
+            .replace(
+                "name = \"front\"",
+                &format!("name = \"front\"\ntopic = \"{front}\""),
+            )
+            .replace(
+                "name = \"tilted\"",
+                &format!("name = \"tilted\"\ntopic = \"{tilted}\""),
+            )
+            .replace(
+                "output = \"delta\"",
+                &format!("output = \"delta\"\ntopic = \"{imu}\""),
+            )
+    }
+
+    #[test]
+    fn ros_topics_are_read_and_a_bad_or_shared_one_is_named() {
+        let config =
+            Config::parse(&with_topics("/horizontal_laser_2d", "/v", "/imu"), path()).unwrap();
+        assert_eq!(
+            config.scanners[0].topic.as_deref(),
+            Some("/horizontal_laser_2d")
+        );
+        assert_eq!(config.imu.topic.as_deref(), Some("/imu"));
+        assert_eq!(Config::parse(VALID, path()).unwrap().imu.topic, None);
+
+        let errors = problems(&with_topics("/h", "/imu", "/imu"));
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(names(&errors[0], "imu.topic = \"/imu\": "), "{errors:#?}");
+        assert!(errors[0].contains("a scanner reads the same topic"));
+
+        let errors = problems(&with_topics("/h", "/h", "/imu"));
+        assert!(
+            names(&errors[0], "scanner[1].topic = \"/h\": "),
+            "{errors:#?}"
+        );
+
+        let errors = problems(&with_topics("scan", "/v", "/imu"));
+        assert_eq!(errors.len(), 1, "{errors:#?}");
+        assert!(
+            names(&errors[0], "scanner[0].topic = \"scan\": ")
+                && errors[0].contains("from the root"),
+            "{errors:#?}"
+        );
     }
 
     #[test]

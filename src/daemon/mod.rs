@@ -24,6 +24,7 @@ pub mod readings;
 pub(crate) mod recorder_thread;
 pub mod recording;
 pub mod replay;
+pub(crate) mod ros;
 pub mod run;
 pub(crate) mod sensor_task;
 pub mod serve;

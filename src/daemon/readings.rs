@@ -7,11 +7,15 @@
 //! geometry in metres, the host time of each measurement (through a `ClockEstimator` per
 //! sensor), the IMU's frame conventions, and the health counts.
 //!
+//! A ROS recording's messages are decoded whole, one reading each, and timed by their header
+//! stamps (`super::ros`).
+//!
 //! A raw port dump has no host times (`log_time_ns == 0` on every chunk): it is timed by the
 //! sensor's own clock, unwrapped, from the first sample.
 
 use super::pipeline::{Chunk, SensorSpec};
 use super::recording::{Direction, Encoding};
+use super::ros::{self, Ranges, ScanConverter};
 use crate::fusion::clock::{ClockConfig, ClockEstimator};
 use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -25,6 +29,8 @@ use xbus::{CoordinateSystem, DataType, OutputConfiguration};
 pub enum Reading {
     Scanner(scip::Event),
     Imu(xbus::Event),
+    /// One ROS message, or why its bytes are not one.
+    Ros(Result<rosmsg::Message, rosmsg::DecodeError>),
 }
 
 impl Reading {
@@ -43,6 +49,8 @@ impl Reading {
 pub(crate) enum Receiver {
     Scanner(scip::Receiver),
     Imu(xbus::Receiver),
+    /// Each ROS message stands alone: nothing to keep between them.
+    Ros(rosmsg::Kind, rosmsg::Encoding),
 }
 
 impl Receiver {
@@ -55,6 +63,7 @@ impl Receiver {
                 xbus::SampleTimeWrap::FromProductCode,
                 xbus::DEFAULT_MAX_PAYLOAD,
             )),
+            Encoding::Ros(kind, encoding) => Self::Ros(kind, encoding),
         }
     }
 
@@ -73,6 +82,9 @@ impl Receiver {
                 out.extend(
                     std::iter::from_fn(|| receiver.poll_event()).filter_map(Reading::from_imu),
                 );
+            }
+            Self::Ros(kind, encoding) => {
+                out.push(Reading::Ros(rosmsg::decode(*kind, *encoding, bytes)));
             }
         }
     }
@@ -97,6 +109,16 @@ impl Receivers {
     /// The next sensor number speaks `encoding`.
     pub(crate) fn add(&mut self, encoding: Encoding) {
         self.receivers.push((encoding, Receiver::new(encoding)));
+    }
+
+    /// Sensor `sensor` speaks `encoding` from now on. A configured sensor's receiver is its
+    /// device's protocol until a ROS recording says its topic carries ROS messages.
+    pub(crate) fn speaks(&mut self, sensor: usize, encoding: Encoding) {
+        if let Some(entry) = self.receivers.get_mut(sensor) {
+            if entry.0 != encoding {
+                *entry = (encoding, Receiver::new(encoding));
+            }
+        }
     }
 
     /// Fills `chunk.readings` from its received bytes, as the sensor task's device did live. A
@@ -186,8 +208,14 @@ impl SensorTiming {
         match (self, reading) {
             (Self::Scanner(t), Reading::Scanner(event)) => t.take(received, event, events),
             (Self::Imu(t), Reading::Imu(event)) => t.take(received, event, events),
+            (Self::Scanner(t), Reading::Ros(Ok(message))) => t.ros(message, events),
+            (Self::Imu(t), Reading::Ros(Ok(rosmsg::Message::Imu(imu)))) => {
+                t.counts.imu_samples += 1;
+                events.push(SensorEvent::Imu(ros::imu_sample(imu)));
+            }
             // Each sensor's readings come from a decoder of its own encoding, so this arm means
-            // a caller crossed two sensors' chunks: counted as errors, never fused.
+            // undecodable ROS bytes, a topic of the wrong type for its sensor, or a caller that
+            // crossed two sensors' chunks: counted as errors, never fused.
             (Self::Scanner(ScannerTiming { counts, .. }), _)
             | (Self::Imu(ImuTiming { counts, .. }), _) => counts.decode_errors += 1,
         }
@@ -254,6 +282,7 @@ pub(crate) struct ScannerTiming {
     geometry: Option<ScannerGeometry>,
     clock: DeviceClock,
     counts: DecodeCounts,
+    ros: ScanConverter,
 }
 
 impl ScannerTiming {
@@ -263,6 +292,28 @@ impl ScannerTiming {
             geometry: None,
             clock: DeviceClock::new(1000.0, 1 << 24),
             counts: DecodeCounts::default(),
+            ros: ScanConverter::default(),
+        }
+    }
+
+    /// A ROS scan, timed by its stamp; one whose description is no planar scanner's is
+    /// dropped.
+    fn ros(&mut self, message: &rosmsg::Message, out: &mut Vec<SensorEvent>) {
+        let (header, info, ranges) = match message {
+            rosmsg::Message::LaserScan(m) => (&m.header, &m.info, Ranges::Single(&m.ranges)),
+            rosmsg::Message::MultiEchoLaserScan(m) => {
+                (&m.header, &m.info, Ranges::FirstEcho(&m.ranges))
+            }
+            rosmsg::Message::Imu(_) | rosmsg::Message::Tf(_) => {
+                self.counts.decode_errors += 1;
+                return;
+            }
+        };
+        let stamp_s = header.stamp.as_secs_f64();
+        if self.ros.take(self.index, stamp_s, info, ranges, out) {
+            self.counts.scans += 1;
+        } else {
+            self.counts.dropped += 1;
         }
     }
 

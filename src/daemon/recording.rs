@@ -6,6 +6,12 @@
 //! written, `log_time` the host monotonic clock in ns. The configuration in force is a metadata
 //! record `ladar-odometer.config` with key `toml`; simulated recordings add `/truth` in JSON.
 //!
+//! The reader also reads ROS recordings (docs/ros-data.md): a channel whose schema is a
+//! `LaserScan`, `MultiEchoLaserScan` or `Imu` in ROS 1 or ROS 2 encoding gives one message per
+//! ROS message, named by its topic, and the replay maps topics to sensors by the configuration.
+//! Other ROS channels (`/tf`, images, logs) are skipped, and listed for the error that names
+//! what a recording holds when none of its topics is usable.
+//!
 //! The reader also takes a raw dump of one port (`cat /dev/ttyACM0 > file`), recognised by its
 //! content; such a dump carries no host times, so its chunks have `log_time_ns == 0` and the
 //! replay times them with the sensor's own clock.
@@ -56,6 +62,8 @@ pub enum Encoding {
     Scip2,
     /// Xsens Xbus.
     Xbus,
+    /// One ROS message of this type per recorded message.
+    Ros(rosmsg::Kind, rosmsg::Encoding),
 }
 
 impl Encoding {
@@ -63,6 +71,7 @@ impl Encoding {
         match self {
             Self::Scip2 => "scip2",
             Self::Xbus => "xbus",
+            Self::Ros(_, encoding) => encoding.as_str(),
         }
     }
 
@@ -95,7 +104,7 @@ pub enum RecordingError {
         offset: u64,
         reason: String,
     },
-    #[error("recording from an unknown sensor: {path} has topic `{topic}` with message encoding `{encoding}` (expected scip2, xbus, or json on /truth)")]
+    #[error("recording from an unknown sensor: {path} has topic `{topic}` with message encoding `{encoding}` (expected scip2, xbus, json on /truth, or ROS messages: ros1 with ros1msg schemas, cdr with ros2msg)")]
     UnknownEncoding {
         path: PathBuf,
         topic: String,
@@ -445,6 +454,11 @@ impl<'p> RecordingReader<'p> {
         self.loss.as_ref()
     }
 
+    /// The ROS topics seen so far, each with its schema name.
+    pub(crate) fn ros_topics(&self) -> &BTreeMap<String, String> {
+        &self.parser.ros_topics
+    }
+
     /// `/truth` samples read so far, in `log_time` order once the file is read.
     pub(crate) fn take_truth(&mut self) -> Vec<TruthSample> {
         self.parser.truth.sort_by_key(|(log_time, _)| *log_time);
@@ -592,6 +606,8 @@ enum ChannelKind {
         encoding: Encoding,
     },
     Truth,
+    /// A ROS channel of a type the replay does not read.
+    Skipped,
 }
 
 /// Reads the records one by one, keeping byte offsets so damage can be located and measured.
@@ -604,6 +620,10 @@ struct McapParser<'p> {
     messages: Vec<RecordedMessage>,
     config_toml: Option<String>,
     truth: Vec<(u64, TruthSample)>,
+    /// Schema id to (name, encoding), for recognising ROS channels.
+    schemas: HashMap<u16, (String, String)>,
+    /// Every ROS topic seen, with its schema name.
+    ros_topics: BTreeMap<String, String>,
 }
 
 /// A record that could not be read, at `offset`.
@@ -621,6 +641,8 @@ impl<'p> McapParser<'p> {
             messages: Vec::new(),
             config_toml: None,
             truth: Vec::new(),
+            schemas: HashMap::new(),
+            ros_topics: BTreeMap::new(),
         }
     }
 
@@ -718,9 +740,16 @@ impl<'p> McapParser<'p> {
 
     fn record(&mut self, record: Record<'_>) -> Result<Step, RecordingError> {
         match record {
-            Record::Channel(channel) => {
-                self.channel(channel.id, channel.topic, channel.message_encoding)?
+            Record::Schema { header, .. } => {
+                self.schemas
+                    .insert(header.id, (header.name, header.encoding));
             }
+            Record::Channel(channel) => self.channel(
+                channel.id,
+                channel.schema_id,
+                channel.topic,
+                channel.message_encoding,
+            )?,
             Record::Message { header, data } => return self.message(header, &data),
             Record::Metadata(metadata) if metadata.name == CONFIG_METADATA_NAME => {
                 self.config_toml = metadata.metadata.get(CONFIG_METADATA_KEY).cloned();
@@ -742,9 +771,17 @@ impl<'p> McapParser<'p> {
         Ok(Step::Continue)
     }
 
-    fn channel(&mut self, id: u16, topic: String, encoding: String) -> Result<(), RecordingError> {
+    fn channel(
+        &mut self,
+        id: u16,
+        schema_id: u16,
+        topic: String,
+        encoding: String,
+    ) -> Result<(), RecordingError> {
         let kind = if topic == TRUTH_TOPIC && encoding == TRUTH_ENCODING {
             ChannelKind::Truth
+        } else if let Some(kind) = self.ros_channel(schema_id, &topic, &encoding) {
+            kind
         } else {
             let Some(encoding_kind) = Encoding::parse(&encoding) else {
                 return Err(RecordingError::UnknownEncoding {
@@ -766,6 +803,25 @@ impl<'p> McapParser<'p> {
         };
         self.channels.insert(id, kind);
         Ok(())
+    }
+
+    /// The channel's kind if its schema is a ROS message, read or skipped.
+    fn ros_channel(&mut self, schema_id: u16, topic: &str, encoding: &str) -> Option<ChannelKind> {
+        let (name, schema_encoding) = self.schemas.get(&schema_id)?;
+        let ros_encoding = rosmsg::Encoding::from_mcap(encoding, schema_encoding)?;
+        self.ros_topics.insert(topic.to_string(), name.clone());
+        Some(match rosmsg::Kind::from_schema_name(name) {
+            Some(
+                kind @ (rosmsg::Kind::LaserScan
+                | rosmsg::Kind::MultiEchoLaserScan
+                | rosmsg::Kind::Imu),
+            ) => ChannelKind::Device {
+                sensor: topic.to_string(),
+                direction: Direction::Rx,
+                encoding: Encoding::Ros(kind, ros_encoding),
+            },
+            Some(rosmsg::Kind::TfMessage) | None => ChannelKind::Skipped,
+        })
     }
 
     fn message(&mut self, header: MessageHeader, data: &[u8]) -> Result<Step, RecordingError> {
@@ -792,6 +848,7 @@ impl<'p> McapParser<'p> {
                     })?;
                 self.truth.push((header.log_time, sample));
             }
+            Some(ChannelKind::Skipped) => {}
             None => {
                 return Ok(Step::Damaged(format!(
                     "a message on channel {} that was never declared",

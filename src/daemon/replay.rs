@@ -7,7 +7,10 @@ use super::foxglove::FoxgloveWriter;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
 use super::outputs::{write_truth, OutputError, Outputs, REPORT_FILE};
-use super::pipeline::{sensor_specs, Chunk, EpochCounts, Estimator, Output, Pipeline, SensorSpec};
+use super::pipeline::{
+    configured_sensors, sensor_specs, Chunk, Configured, EpochCounts, Estimator, Output, Pipeline,
+    SensorSpec,
+};
 use super::readings::{DecodeCounts, Receivers};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
@@ -21,6 +24,7 @@ use crate::sensors::{ImuSample, Scan, ScannerGeometry};
 use mavlink::dialects::ardupilotmega::MavMessage;
 use mavlink::MAVLinkV2MessageRaw;
 use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -36,6 +40,9 @@ pub const BUNDLED_RECORDING: &str = "data/hallway-hover.mcap";
 #[derive(Debug, Clone, Default)]
 pub struct ReplayOptions {
     pub recording: PathBuf,
+    /// Replay with this configuration instead of the recorded one: a ROS recording carries
+    /// none, and its sensors are found by the `topic` keys of this one.
+    pub config: Option<PathBuf>,
     pub out: Option<PathBuf>,
     /// Pace the chunks at their recorded log times instead of as fast as possible.
     pub realtime: bool,
@@ -62,6 +69,12 @@ pub enum ReplayError {
     Recording(#[from] RecordingError),
     #[error("recording {path} carries a configuration that no longer loads: {errors}")]
     Config { path: PathBuf, errors: String },
+    #[error("{0}")]
+    ConfigFile(String),
+    #[error("recording {path} holds ROS messages ({topics}) and no ladar-odometer configuration: pass --config FILE whose [[scanner]] and [imu] tables name their topics, with the mounts (docs/ros-data.md)")]
+    RosWithoutConfig { path: PathBuf, topics: String },
+    #[error("recording {path} has no topic the configuration reads: it has {topics}; set `topic = \"/NAME\"` in the [[scanner]] and [imu] tables of the --config file to LaserScan, MultiEchoLaserScan and Imu topics among them (docs/ros-data.md)")]
+    NoUsableTopic { path: PathBuf, topics: String },
     #[error("recording from an unknown sensor: {path} has bytes from `{sensor}`, which its configuration does not list (replay the file the recording came with, or fix its [[scanner]]/[imu] names)")]
     UnknownSensor { path: PathBuf, sensor: String },
     #[error("replay --tolerant kept nothing of {path}: {loss} before any complete sensor message; if the file is cut, try `mcap recover` (Foxglove's mcap CLI), else record it again")]
@@ -202,13 +215,18 @@ pub fn replay<E: Estimator>(
         ReadMode::Strict
     };
     let mut reader = RecordingReader::open(path, mode)?;
-    let config = match reader.config_toml() {
-        Some(text) => Some(Config::parse(text, path).map_err(|e| ReplayError::Config {
+    let config = match (&options.config, reader.config_toml()) {
+        (Some(file), _) => {
+            Some(Config::load(file).map_err(|e| ReplayError::ConfigFile(e.to_string()))?)
+        }
+        (None, Some(text)) => Some(Config::parse(text, path).map_err(|e| ReplayError::Config {
             path: path.to_path_buf(),
             errors: e.to_string(),
         })?),
-        None => None,
+        (None, None) => None,
     };
+    let topics = config.as_ref().map(sensor_topics).unwrap_or_default();
+    let mut ros_read = false;
     let mut specs = match &config {
         Some(config) => sensor_specs(config),
         None => Vec::new(),
@@ -216,6 +234,9 @@ pub fn replay<E: Estimator>(
     // Without a configuration the sensors are whatever the file holds, in order of appearance.
     let discover = config.is_none();
     let first = reader.next_message()?;
+    if first.is_none() && !reader.ros_topics().is_empty() {
+        return Err(no_usable_topic(path, config.is_some(), reader.ros_topics()));
+    }
     if first.is_none() {
         let path = path.to_path_buf();
         return Err(match reader.loss().cloned() {
@@ -224,7 +245,7 @@ pub fn replay<E: Estimator>(
         });
     }
     if discover {
-        if let Some(message) = &first {
+        if let Some(message) = first.as_ref().filter(|m| is_raw(m)) {
             specs.push(spec_for(message, 0));
         }
     }
@@ -253,7 +274,11 @@ pub fn replay<E: Estimator>(
     tracing::info!(
         recording = %path.display(),
         format = ?reader.format(),
-        configuration = if config.is_some() { "recorded" } else { "none, sensors from the file" },
+        configuration = match (&options.config, &config) {
+            (Some(_), _) => "given",
+            (None, Some(_)) => "recorded",
+            (None, None) => "none, sensors from the file",
+        },
         "replaying"
     );
     let progress = progress_bar(options.progress, reader.position().1);
@@ -281,21 +306,33 @@ pub fn replay<E: Estimator>(
         if until_s.is_some_and(|until| message.log_time_ns as f64 * 1e-9 > until) {
             break;
         }
-        let sensor = match pipeline.sensor_named(&message.sensor) {
-            Some(sensor) => sensor,
-            None if discover => {
+        let sensor = match (pipeline.sensor_named(&message.sensor), is_raw(&message)) {
+            // A ROS topic no sensor reads (a camera, a third scanner) is not replayed.
+            (_, false) => match topics.get(&message.sensor) {
+                Some(&sensor) => {
+                    ros_read = true;
+                    sensor
+                }
+                None => {
+                    next = reader.next_message()?;
+                    continue;
+                }
+            },
+            (Some(sensor), true) => sensor,
+            (None, true) if discover => {
                 let index = pipeline.specs().len();
                 receivers.add(message.encoding);
                 pipeline = pipeline.with_sensor(spec_for(&message, index));
                 index
             }
-            None => {
+            (None, true) => {
                 return Err(ReplayError::UnknownSensor {
                     path: path.to_path_buf(),
                     sensor: message.sensor,
                 })
             }
         };
+        receivers.speaks(sensor, message.encoding);
         if options.realtime {
             tally.pace(message.log_time_ns, started);
         }
@@ -332,6 +369,9 @@ pub fn replay<E: Estimator>(
         next = reader.next_message()?;
     }
     progress.finish_and_clear();
+    if !ros_read && !reader.ros_topics().is_empty() {
+        return Err(no_usable_topic(path, config.is_some(), reader.ros_topics()));
+    }
     if let Some(outputs) = outputs {
         outputs.finish()?;
     }
@@ -456,15 +496,53 @@ impl<E: Estimator> Estimator for FromTime<E> {
     }
 }
 
+/// Whether a message holds a device's bytes, rather than a ROS message.
+fn is_raw(message: &RecordedMessage) -> bool {
+    !matches!(message.encoding, Encoding::Ros(..))
+}
+
+/// The sensor a raw-byte message found in a recording without a configuration comes from. ROS
+/// topics become sensors only through a configuration: their messages carry no mount.
 fn spec_for(message: &RecordedMessage, index: usize) -> SensorSpec {
     let name = message.sensor.clone();
-    match message.encoding {
-        Encoding::Scip2 => SensorSpec::Scanner { name, index },
-        Encoding::Xbus => SensorSpec::Imu {
+    if message.encoding == Encoding::Xbus {
+        SensorSpec::Imu {
             name,
             sample_time_modulus: xbus::U32_TICKS,
             rate_hz: 100.0,
-        },
+        }
+    } else {
+        SensorSpec::Scanner { name, index }
+    }
+}
+
+/// The configured sensors' ROS topics, each with its sensor number.
+fn sensor_topics(config: &Config) -> HashMap<String, usize> {
+    let topic = |sensor| match sensor {
+        Configured::Scanner(scanner) => scanner.topic.clone(),
+        Configured::Imu(imu) => imu.topic.clone(),
+    };
+    configured_sensors(config)
+        .enumerate()
+        .filter_map(|(number, sensor)| Some((topic(sensor)?, number)))
+        .collect()
+}
+
+fn no_usable_topic(
+    path: &std::path::Path,
+    configured: bool,
+    topics: &BTreeMap<String, String>,
+) -> ReplayError {
+    let path = path.to_path_buf();
+    let topics = topics
+        .iter()
+        .map(|(topic, schema)| format!("{topic} ({schema})"))
+        .collect::<Vec<_>>()
+        .join(", ");
+    if configured {
+        ReplayError::NoUsableTopic { path, topics }
+    } else {
+        ReplayError::RosWithoutConfig { path, topics }
     }
 }
 
