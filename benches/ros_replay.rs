@@ -76,6 +76,7 @@ fn recordings() -> &'static Recordings {
             let rig = RosRig {
                 topics: &TOPICS,
                 multi_echo,
+                mounts: &[],
             };
             ros_mcap::write(path, encoding, &trace.calls, &rig);
         }

@@ -55,7 +55,8 @@ fn default_toml_sets_the_code_defaults() {
     }
     assert_eq!(config.scanners[0].stream, ScanStream::Md);
     assert_eq!(config.imu.name, minimal.imu.name);
-    assert_eq!(config.imu.rpy_deg, minimal.imu.rpy_deg);
+    assert_eq!(config.imu.rpy_deg, Some([0.0; 3]));
+    assert_eq!(minimal.imu.rpy_deg.unwrap_or_default(), [0.0; 3]);
     assert_eq!(config.imu.translation_m, minimal.imu.translation_m);
     assert_eq!(config.imu.output, minimal.imu.output);
     assert_eq!(config.imu.output, ImuOutput::Rate);
@@ -189,8 +190,8 @@ fn the_cartographer_backpack_mounts_are_its_urdfs_in_frd() {
     let mounts = config
         .scanners
         .iter()
-        .map(|s| (s.rpy_deg, s.translation_m))
-        .chain([(config.imu.rpy_deg, config.imu.translation_m)]);
+        .map(|s| (s.rpy_deg.unwrap(), s.translation_m.unwrap()))
+        .chain([(config.imu.rpy_deg.unwrap(), config.imu.translation_m)]);
     for (([r, p, y], xyz), (rpy_deg, translation_m)) in urdf.into_iter().zip(mounts) {
         let want = f * Rotation3::from_euler_angles(r, p, y).matrix() * f;
         let got = Mount::from_rpy_deg(rpy_deg, translation_m);
@@ -202,6 +203,6 @@ fn the_cartographer_backpack_mounts_are_its_urdfs_in_frd() {
         assert!((got.translation - f * Vector3::from(xyz)).norm() < 1e-12);
     }
     // The vertical scanner's forward beam points up, which is -z in FRD.
-    let vertical = Mount::from_rpy_deg(config.scanners[1].rpy_deg, [0.0; 3]);
+    let vertical = Mount::from_rpy_deg(config.scanners[1].rpy_deg.unwrap(), [0.0; 3]);
     assert!((vertical.to_body(&Vector3::x()) - Vector3::new(0.0, 0.0, -1.0)).norm() < 1e-3);
 }

@@ -5,13 +5,14 @@
 #[path = "support/ros_mcap.rs"]
 mod ros_mcap;
 
+use ladar_odometer::daemon::config::Config;
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::pipeline::{EpochCounts, Estimator, EventTrace, Traced};
 use ladar_odometer::daemon::recording::{ReadMode, Recording};
 use ladar_odometer::daemon::replay::{self, ReplayError, ReplayOptions, ReplaySummary};
 use ladar_odometer::daemon::simulate;
 use ladar_odometer::estimate::Estimate;
-use ladar_odometer::sensors::{ImuSample, Scan, ScannerGeometry};
+use ladar_odometer::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
 use ladar_sim::{ImuOutput, Scenario};
 use ros_mcap::RosRig;
 use std::path::{Path, PathBuf};
@@ -73,10 +74,21 @@ fn flight() -> &'static Flight {
 }
 
 fn ros_recording(name: &str, encoding: rosmsg::Encoding, multi_echo: &[usize]) -> PathBuf {
+    ros_recording_with_mounts(name, encoding, multi_echo, &[])
+}
+
+/// With `/tf_static` carrying `mounts` unless that is empty.
+fn ros_recording_with_mounts(
+    name: &str,
+    encoding: rosmsg::Encoding,
+    multi_echo: &[usize],
+    mounts: &[Mount],
+) -> PathBuf {
     let path = scratch(name);
     let rig = RosRig {
         topics: &TOPICS,
         multi_echo,
+        mounts,
     };
     ros_mcap::write(&path, encoding, &flight().calls, &rig);
     path
@@ -289,4 +301,77 @@ fn a_ros_topic_of_the_wrong_type_for_its_sensor_is_counted_never_fused() {
         c,
         Traced::Imu(_) | Traced::Scan(ladar_odometer::sensors::Scan { sensor: 1, .. })
     )));
+}
+
+/// The flight's mounts as its configuration states them, scanners then the IMU, and that
+/// configuration with every mount left out and the body frame of `/tf_static` named instead.
+fn mounts_and_config_without_them() -> (Vec<Mount>, PathBuf) {
+    let path = &flight().ros_config;
+    let config = Config::load(path).unwrap();
+    let mounts = config
+        .scanners
+        .iter()
+        .map(|s| Mount::from_rpy_deg(s.rpy_deg.unwrap(), s.translation_m.unwrap()))
+        .chain([Mount::from_rpy_deg(config.imu.rpy_deg.unwrap(), [0.0; 3])])
+        .collect();
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut without: String = text
+        .lines()
+        .filter(|line| !line.starts_with("rpy_deg") && !line.starts_with("translation_m"))
+        .map(|line| format!("{line}\n"))
+        .collect();
+    assert_eq!(text.lines().count() - without.lines().count(), 5, "{text}");
+    without += &format!("\n[ros]\nbody_frame = \"{}\"\n", ros_mcap::BODY_FRAME);
+    let without_path = scratch("flight-ros-tf.toml");
+    std::fs::write(&without_path, without).unwrap();
+    (mounts, without_path)
+}
+
+#[test]
+fn mounts_from_tf_static_give_the_trajectory_of_mounts_stated_in_the_configuration() {
+    let flight = flight();
+    let (mounts, without) = mounts_and_config_without_them();
+    for (name, encoding) in [
+        ("tf-ros2.mcap", rosmsg::Encoding::Cdr),
+        ("tf-ros1.mcap", rosmsg::Encoding::Ros1),
+    ] {
+        let recording = ros_recording_with_mounts(name, encoding, &[], &mounts);
+        let (stated_summary, stated) = trajectory(
+            &recording,
+            Some(&flight.ros_config),
+            &format!("{name}-stated"),
+        );
+        assert!(stated_summary.outputs.epochs > 10, "{stated_summary}");
+        let (summary, from_tf) = trajectory(&recording, Some(&without), &format!("{name}-tf"));
+        assert_eq!(summary.outputs, stated_summary.outputs, "{name}");
+        assert_eq!(stated.len(), from_tf.len(), "{name}");
+        // The same mounts, through a quaternion and back to degrees: rounding only.
+        let (position, attitude) = largest_difference(&stated, &from_tf);
+        assert!(
+            position < 1e-9 && attitude < 1e-9,
+            "{name}: {position} m, {attitude} rad"
+        );
+    }
+}
+
+#[test]
+fn a_mount_left_out_of_a_recording_without_tf_static_is_one_line_naming_sensor_and_fix() {
+    let (_, without) = mounts_and_config_without_them();
+    let recording = ros_recording("no-tf.mcap", rosmsg::Encoding::Cdr, &[]);
+    let options = ReplayOptions {
+        recording,
+        config: Some(without),
+        ..ReplayOptions::default()
+    };
+    let error = replay::replay(&options, |_, _| EventTrace::default()).unwrap_err();
+    let line = error.to_string();
+    assert!(matches!(error, ReplayError::NoMount { .. }), "{error:?}");
+    assert!(!line.contains('\n'), "{line}");
+    for part in [
+        "[[scanner]] 0 on /horizontal_laser_2d",
+        "no chain from `base_link` to `horizontal_laser_2d_link`",
+        "set rpy_deg and translation_m",
+    ] {
+        assert!(line.contains(part), "{part} missing: {line}");
+    }
 }

@@ -26,6 +26,7 @@ pub struct Config {
     pub scanners: Vec<ScannerConfig>,
     pub imu: ImuConfig,
     pub mavlink: Option<MavlinkConfig>,
+    pub ros: RosConfig,
     pub recording: RecordingConfig,
     pub output: OutputConfig,
     pub fusion: crate::fusion::FusionConfig,
@@ -124,9 +125,12 @@ pub struct ScannerConfig {
     /// Also the recording topic `/<name>/rx`: letters, digits, `-` and `_`.
     pub name: String,
     pub connection: String,
-    /// Mount `[roll, pitch, yaw]` in degrees (docs/design.md, "Frames").
-    pub rpy_deg: [f64; 3],
-    pub translation_m: [f64; 3],
+    /// Mount `[roll, pitch, yaw]` in degrees (docs/design.md, "Frames"); with
+    /// `translation_m`, left out only to take the mount from a ROS recording's `/tf_static`.
+    #[serde(default)]
+    pub rpy_deg: Option<[f64; 3]>,
+    #[serde(default)]
+    pub translation_m: Option<[f64; 3]>,
     /// Ranging noise, one sigma, metres.
     pub range_sigma_m: f64,
     #[serde(default = "ScannerConfig::default_stream")]
@@ -152,8 +156,13 @@ impl ScannerConfig {
         1
     }
 
+    /// Valid after [`Config::parse`] and, for a mount left to `/tf_static`, after the replay
+    /// has set it ([`Config::missing_mounts`] lists those).
     pub(crate) fn mount(&self) -> Mount {
-        Mount::from_rpy_deg(self.rpy_deg, self.translation_m)
+        Mount::from_rpy_deg(
+            self.rpy_deg.unwrap_or_default(),
+            self.translation_m.unwrap_or_default(),
+        )
     }
 
     /// Valid after [`Config::parse`].
@@ -189,8 +198,10 @@ pub struct ImuConfig {
     #[serde(default = "ImuConfig::default_name")]
     pub name: String,
     pub connection: String,
+    /// Identity when left out, unless `[ros] body_frame` takes it from `/tf_static`.
     #[serde(default)]
-    pub rpy_deg: [f64; 3],
+    pub rpy_deg: Option<[f64; 3]>,
+    /// Neglected by the filter (docs/design.md, "Frames"), so never taken from `/tf_static`.
     #[serde(default)]
     pub translation_m: [f64; 3],
     #[serde(default = "ImuConfig::default_output")]
@@ -354,9 +365,35 @@ pub struct OutputConfig {
     pub dir: Option<PathBuf>,
 }
 
+/// `[ros]`: how a replay of ROS data reads what the recording carries (docs/ros-data.md).
+#[derive(Debug, Clone, Default, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RosConfig {
+    /// The ROS frame of this project's body (`base_link`): a sensor whose table leaves its
+    /// mount out takes it from `/tf_static`, as the chain from this frame to the sensor's.
+    #[serde(default)]
+    pub body_frame: Option<String>,
+}
+
+/// A sensor whose mount the configuration leaves to `/tf_static`; displays as its table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MountOf {
+    Scanner(usize),
+    Imu,
+}
+
+impl fmt::Display for MountOf {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Scanner(i) => write!(f, "[[scanner]] {i}"),
+            Self::Imu => f.write_str("[imu]"),
+        }
+    }
+}
+
 /// The tables of the file, in the order `Config` reads them.
-const TABLES: &str = "[[scanner]], [imu], [mavlink], [recording], [output], [fusion], [odometry], \
-                      [integrity], [filter]";
+const TABLES: &str = "[[scanner]], [imu], [mavlink], [ros], [recording], [output], [fusion], \
+                      [odometry], [integrity], [filter]";
 
 /// Keys that are not keys of their table because the file sets the same thing elsewhere, with
 /// where: one place per setting, so the two cannot disagree.
@@ -408,6 +445,7 @@ impl Config {
                 check_mavlink(mavlink, errors);
             }
         });
+        let ros = file.table("ros", check_ros);
         let recording = file.table("recording", check_recording);
         let output = file.table("output", |_: &OutputConfig, _| {});
         let fusion = file.table("fusion", crate::fusion::FusionConfig::check);
@@ -419,6 +457,7 @@ impl Config {
             Some(scanners),
             Some(imu),
             Some(mavlink),
+            Some(ros),
             Some(recording),
             Some(output),
             Some(fusion),
@@ -426,7 +465,7 @@ impl Config {
             Some(integrity),
             Some(filter),
         ) = (
-            scanners, imu, mavlink, recording, output, fusion, odometry, integrity, filter,
+            scanners, imu, mavlink, ros, recording, output, fusion, odometry, integrity, filter,
         )
         else {
             return Err(errors);
@@ -435,6 +474,7 @@ impl Config {
             scanners,
             imu,
             mavlink,
+            ros,
             recording,
             output,
             fusion,
@@ -466,13 +506,70 @@ impl Config {
             );
         }
         self.fusion_settings().check_history(errors);
+        // A mount left out is one the replay of a ROS recording takes from `/tf_static`: only
+        // with a body frame to chain from and a topic whose frame to chain to.
+        for (i, scanner) in self.scanners.iter().enumerate() {
+            let key = match (scanner.rpy_deg, scanner.translation_m) {
+                (Some(_), Some(_)) => continue,
+                (None, Some(_)) => "rpy_deg",
+                (Some(_), None) => "translation_m",
+                (None, None) if self.ros.body_frame.is_some() && scanner.topic.is_some() => {
+                    continue
+                }
+                (None, None) => "rpy_deg",
+            };
+            errors.push(ConfigError::new(
+                format!("scanner[{i}].{key}"),
+                "missing: set rpy_deg and translation_m, or leave both out and set `topic` and [ros] body_frame to take the mount from a ROS recording's /tf_static",
+            ));
+        }
+        if self.imu.rpy_deg.is_none() && self.ros.body_frame.is_some() && self.imu.topic.is_none() {
+            errors.push(ConfigError::new(
+                "imu.rpy_deg",
+                "missing with [ros] body_frame set: set rpy_deg, or `topic` to take the mount from /tf_static",
+            ));
+        }
+    }
+
+    /// The sensors whose mount a replay takes from `/tf_static`, with their topics.
+    pub fn missing_mounts(&self) -> Vec<(MountOf, String)> {
+        if self.ros.body_frame.is_none() {
+            return Vec::new();
+        }
+        let scanners = self.scanners.iter().enumerate().filter_map(|(i, s)| {
+            let topic = s.topic.clone().filter(|_| s.rpy_deg.is_none())?;
+            Some((MountOf::Scanner(i), topic))
+        });
+        let imu = self
+            .imu
+            .topic
+            .clone()
+            .filter(|_| self.imu.rpy_deg.is_none());
+        scanners
+            .chain(imu.map(|topic| (MountOf::Imu, topic)))
+            .collect()
+    }
+
+    /// Sets a mount [`Config::missing_mounts`] lists, in FRD as `/tf_static` gives it.
+    pub fn set_mount(&mut self, of: MountOf, mount: &Mount) {
+        let (roll, pitch, yaw) = mount.rotation.euler_angles();
+        let rpy_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
+        match of {
+            MountOf::Scanner(i) => {
+                if let Some(scanner) = self.scanners.get_mut(i) {
+                    scanner.rpy_deg = rpy_deg;
+                    scanner.translation_m = Some(mount.translation.into());
+                }
+            }
+            MountOf::Imu => self.imu.rpy_deg = rpy_deg,
+        }
     }
 
     /// The `[fusion]`, `[odometry]`, `[integrity]` and `[filter]` tables, with the IMU mount
     /// taken from `[imu]` so that it is set in one place only.
     pub fn fusion_settings(&self) -> crate::fusion::FusionSettings {
         let mut filter = self.filter.clone();
-        filter.imu_mount_rpy_deg = self.imu.rpy_deg;
+        filter.imu_mount_rpy_deg = self.imu.rpy_deg.unwrap_or_default();
         crate::fusion::FusionSettings {
             fusion: self.fusion.clone(),
             odometry: self.odometry.clone(),
@@ -646,13 +743,23 @@ fn valid_name(name: &str) -> bool {
             .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
 }
 
-fn check_mount(table: &mut Table<'_>, rpy_deg: &[f64; 3], translation_m: &[f64; 3]) {
-    table.check(
-        rpy_deg.iter().all(|a| a.is_finite() && a.abs() <= 180.0),
-        "rpy_deg",
-        rpy_deg,
-        "angles must be finite degrees within [-180, 180]",
-    );
+/// The parts of a mount the table gives; one left out is checked by `Config::check_across`.
+fn check_mount(
+    table: &mut Table<'_>,
+    rpy_deg: Option<&[f64; 3]>,
+    translation_m: Option<&[f64; 3]>,
+) {
+    if let Some(rpy_deg) = rpy_deg {
+        table.check(
+            rpy_deg.iter().all(|a| a.is_finite() && a.abs() <= 180.0),
+            "rpy_deg",
+            rpy_deg,
+            "angles must be finite degrees within [-180, 180]",
+        );
+    }
+    let Some(translation_m) = translation_m else {
+        return;
+    };
     table.check(
         translation_m
             .iter()
@@ -694,13 +801,20 @@ fn check_scanners(scanners: &[ScannerConfig], errors: &mut ConfigErrors) {
             );
         }
     }
-    if let [a, b, ..] = scanners {
+    // Mounts from /tf_static are known only once the recording is read.
+    if let [a @ ScannerConfig {
+        rpy_deg: Some(_), ..
+    }, b @ ScannerConfig {
+        rpy_deg: Some(b_rpy),
+        ..
+    }, ..] = scanners
+    {
         let normal = |s: &ScannerConfig| s.mount().rotation * nalgebra::Vector3::z();
         let angle = normal(a).angle(&normal(b)).to_degrees();
         errors.table("scanner[1]").check(
             !angle.is_finite() || (5.0..=175.0).contains(&angle),
             "rpy_deg",
-            b.rpy_deg,
+            b_rpy,
             format!("the two scan planes are {angle:.1} deg apart: tilt one by 5 deg or more so that planes can be found"),
         );
     }
@@ -716,7 +830,7 @@ fn check_scanner(table: &mut Table<'_>, s: &ScannerConfig) {
     if let Err(problem) = s.connection.parse::<SensorConnection>() {
         table.refuse("connection", &s.connection, problem);
     }
-    check_mount(table, &s.rpy_deg, &s.translation_m);
+    check_mount(table, s.rpy_deg.as_ref(), s.translation_m.as_ref());
     table.check(
         s.range_sigma_m > 0.0 && s.range_sigma_m <= 0.5,
         "range_sigma_m",
@@ -757,7 +871,7 @@ fn check_imu(imu: &ImuConfig, errors: &mut ConfigErrors) {
         ),
         Ok(_) => {}
     }
-    check_mount(&mut table, &imu.rpy_deg, &imu.translation_m);
+    check_mount(&mut table, imu.rpy_deg.as_ref(), Some(&imu.translation_m));
     check_topic(&mut table, imu.topic.as_deref());
     table.check(
         (1..=2000).contains(&imu.rate_hz),
@@ -808,6 +922,17 @@ fn check_mavlink(m: &MavlinkConfig, errors: &mut ConfigErrors) {
     if let Err(problem) = m.signing() {
         // No value: it would be the key.
         errors.push(ConfigError::new("mavlink.signing", problem));
+    }
+}
+
+fn check_ros(ros: &RosConfig, errors: &mut ConfigErrors) {
+    if let Some(frame) = &ros.body_frame {
+        errors.table("ros").check(
+            !frame.trim_start_matches('/').is_empty() && !frame.contains(char::is_whitespace),
+            "body_frame",
+            frame,
+            "a ROS frame as /tf_static names it: \"base_link\"",
+        );
     }
 }
 

@@ -9,7 +9,8 @@
 //! The reader also reads ROS recordings (docs/ros-data.md): a channel whose schema is a
 //! `LaserScan`, `MultiEchoLaserScan` or `Imu` in ROS 1 or ROS 2 encoding gives one message per
 //! ROS message, named by its topic, and the replay maps topics to sensors by the configuration.
-//! Other ROS channels (`/tf`, images, logs) are skipped, and listed for the error that names
+//! `/tf_static` is kept for the mounts it carries ([`RecordingReader::tf_static`]); other ROS
+//! channels (`/tf`, images, logs) are skipped, and listed for the error that names
 //! what a recording holds when none of its topics is usable.
 //!
 //! The reader also takes a raw dump of one port (`cat /dev/ttyACM0 > file`), recognised by its
@@ -32,6 +33,8 @@ pub const CONFIG_METADATA_NAME: &str = "ladar-odometer.config";
 pub const CONFIG_METADATA_KEY: &str = "toml";
 pub(crate) const TRUTH_TOPIC: &str = "/truth";
 pub(crate) const TRUTH_ENCODING: &str = "json";
+/// The ROS topic of the static transforms, a robot's mounts.
+const TF_STATIC_TOPIC: &str = "/tf_static";
 /// Sensor name given to the bytes of a raw port dump.
 pub(crate) const RAW_DUMP_SENSOR: &str = "raw";
 const RAW_DUMP_CHUNK: usize = 4096;
@@ -459,6 +462,11 @@ impl<'p> RecordingReader<'p> {
         &self.parser.ros_topics
     }
 
+    /// The `/tf_static` transforms read so far, in file order.
+    pub(crate) fn tf_static(&self) -> &[rosmsg::TransformStamped] {
+        &self.parser.tf_static
+    }
+
     /// `/truth` samples read so far, in `log_time` order once the file is read.
     pub(crate) fn take_truth(&mut self) -> Vec<TruthSample> {
         self.parser.truth.sort_by_key(|(log_time, _)| *log_time);
@@ -606,6 +614,8 @@ enum ChannelKind {
         encoding: Encoding,
     },
     Truth,
+    /// `/tf_static`: the mounts a ROS recording may carry.
+    TfStatic(rosmsg::Encoding),
     /// A ROS channel of a type the replay does not read.
     Skipped,
 }
@@ -624,6 +634,7 @@ struct McapParser<'p> {
     schemas: HashMap<u16, (String, String)>,
     /// Every ROS topic seen, with its schema name.
     ros_topics: BTreeMap<String, String>,
+    tf_static: Vec<rosmsg::TransformStamped>,
 }
 
 /// A record that could not be read, at `offset`.
@@ -643,6 +654,7 @@ impl<'p> McapParser<'p> {
             truth: Vec::new(),
             schemas: HashMap::new(),
             ros_topics: BTreeMap::new(),
+            tf_static: Vec::new(),
         }
     }
 
@@ -820,6 +832,9 @@ impl<'p> McapParser<'p> {
                 direction: Direction::Rx,
                 encoding: Encoding::Ros(kind, ros_encoding),
             },
+            Some(rosmsg::Kind::TfMessage) if topic == TF_STATIC_TOPIC => {
+                ChannelKind::TfStatic(ros_encoding)
+            }
             Some(rosmsg::Kind::TfMessage) | None => ChannelKind::Skipped,
         })
     }
@@ -847,6 +862,16 @@ impl<'p> McapParser<'p> {
                         reason,
                     })?;
                 self.truth.push((header.log_time, sample));
+            }
+            Some(ChannelKind::TfStatic(encoding)) => {
+                match rosmsg::decode(rosmsg::Kind::TfMessage, *encoding, data) {
+                    Ok(rosmsg::Message::Tf(tf)) => self.tf_static.extend(tf.transforms),
+                    // A mount it would have given is missing, and the replay names it.
+                    Ok(_) | Err(_) => tracing::warn!(
+                        log_time_ns = header.log_time,
+                        "a {TF_STATIC_TOPIC} message that does not decode is skipped"
+                    ),
+                }
             }
             Some(ChannelKind::Skipped) => {}
             None => {

@@ -2,7 +2,7 @@
 //! through the same [`Pipeline`] as `run`, so the estimates come out bit for bit the same. The
 //! recording is streamed one MCAP chunk at a time, so a long flight replays in a few megabytes.
 
-use super::config::Config;
+use super::config::{Config, MountOf};
 use super::foxglove::FoxgloveWriter;
 use super::link::{Link, LinkAddress, LinkError};
 use super::mavlink_out::{Identity, MavlinkStream, Profile, QualityPolicy, DEFAULT_COMPONENT_ID};
@@ -15,6 +15,7 @@ use super::readings::{DecodeCounts, Receivers};
 use super::recording::{
     Encoding, Loss, ReadMode, RecordedMessage, RecordingError, RecordingReader,
 };
+use super::ros;
 use super::sink::{Autopilot, Sink, Tally};
 use super::truth::{autopilot_view, truth_errors, AutopilotView, TruthErrors};
 use crate::estimate::Estimate;
@@ -81,6 +82,13 @@ pub enum ReplayError {
     NothingKept { path: PathBuf, loss: Loss },
     #[error("recording {path} holds no sensor bytes to replay (expected /<sensor>/rx channels as `run --record` and `simulate` write)")]
     Empty { path: PathBuf },
+    #[error("{path}: no mount for the {sensor} on {topic}: {problem}; set rpy_deg and translation_m in its table (docs/ros-data.md, \"Mounts\")")]
+    NoMount {
+        path: PathBuf,
+        sensor: MountOf,
+        topic: String,
+        problem: String,
+    },
     #[error(transparent)]
     Output(#[from] OutputError),
     #[error("{0}")]
@@ -224,6 +232,13 @@ pub fn replay<E: Estimator>(
             errors: e.to_string(),
         })?),
         (None, None) => None,
+    };
+    let config = match config {
+        Some(mut config) => {
+            mounts_from_tf_static(path, mode, &mut config)?;
+            Some(config)
+        }
+        None => None,
     };
     let topics = config.as_ref().map(sensor_topics).unwrap_or_default();
     let mut ros_read = false;
@@ -494,6 +509,65 @@ impl<E: Estimator> Estimator for FromTime<E> {
     fn epoch_counts(epoch: &Self::Epoch) -> EpochCounts {
         E::epoch_counts(epoch)
     }
+}
+
+/// Sets the mounts `config` leaves to `/tf_static` from the recording's static transforms, as
+/// the chain from `[ros] body_frame` to the frame of each sensor's first message.
+///
+/// A first pass over the whole file, before the replay: the fusion needs each mount from the
+/// first scan on, and although recorders write `/tf_static` near the start (it is latched),
+/// nothing orders it before the scans, e.g. when the recording starts before the node that
+/// publishes it. The pass costs one more read of the file, and only when a mount is left out.
+fn mounts_from_tf_static(
+    path: &std::path::Path,
+    mode: ReadMode,
+    config: &mut Config,
+) -> Result<(), ReplayError> {
+    let missing = config.missing_mounts();
+    let Some(body_frame) = config
+        .ros
+        .body_frame
+        .clone()
+        .filter(|_| !missing.is_empty())
+    else {
+        return Ok(());
+    };
+    let mut frames: HashMap<&str, String> = HashMap::new();
+    let mut reader = RecordingReader::open(path, mode)?;
+    while let Some(message) = reader.next_message()? {
+        let Encoding::Ros(kind, encoding) = message.encoding else {
+            continue;
+        };
+        if frames.contains_key(message.sensor.as_str()) {
+            continue;
+        }
+        let Some((_, topic)) = missing.iter().find(|(_, topic)| *topic == message.sensor) else {
+            continue;
+        };
+        let frame = match rosmsg::decode(kind, encoding, &message.data) {
+            Ok(rosmsg::Message::LaserScan(m)) => m.header.frame_id,
+            Ok(rosmsg::Message::MultiEchoLaserScan(m)) => m.header.frame_id,
+            Ok(rosmsg::Message::Imu(m)) => m.header.frame_id,
+            // The replay counts it as the decode error it is; a later message names the frame.
+            Ok(rosmsg::Message::Tf(_)) | Err(_) => continue,
+        };
+        frames.insert(topic, frame);
+    }
+    for (sensor, topic) in &missing {
+        let no_mount = |problem: String| ReplayError::NoMount {
+            path: path.to_path_buf(),
+            sensor: *sensor,
+            topic: topic.clone(),
+            problem,
+        };
+        let frame = frames.get(topic.as_str()).ok_or_else(|| {
+            no_mount("the recording has no message on it to name its frame".into())
+        })?;
+        let mount = ros::mount_from_tf(&body_frame, frame, reader.tf_static()).map_err(no_mount)?;
+        tracing::info!(%sensor, %topic, %frame, ?mount, "mount from /tf_static");
+        config.set_mount(*sensor, &mount);
+    }
+    Ok(())
 }
 
 /// Whether a message holds a device's bytes, rather than a ROS message.

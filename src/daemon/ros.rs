@@ -8,8 +8,8 @@
 //! `-theta` of the FRD scanner frame: exactly how SCIP steps count, later steps to the left.
 
 use super::readings::SensorEvent;
-use crate::sensors::{ImuSample, Scan, ScannerGeometry};
-use nalgebra::Vector3;
+use crate::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rosmsg::{Echoes, ScanInfo};
 use std::f64::consts::TAU;
 
@@ -155,6 +155,73 @@ impl ScanConverter {
 /// FLU to FRD (and ENU to NED): a half turn about x.
 fn flu_to_frd(v: &rosmsg::Vector3) -> Vector3<f64> {
     Vector3::new(v.x, -v.y, -v.z)
+}
+
+/// A ROS frame's name as tf2 compares it: ROS 1 names may start with a `/` that tf2 drops.
+fn frame_name(frame: &str) -> &str {
+    frame.trim_start_matches('/')
+}
+
+/// Where `frame` sits in the root of its tree, in FLU, by the chain of `transforms` (each
+/// child has one parent, as in tf2), and that root's name.
+fn to_root<'a>(
+    frame: &'a str,
+    transforms: &'a [rosmsg::TransformStamped],
+) -> (&'a str, Isometry3<f64>) {
+    let mut pose = Isometry3::identity();
+    let mut at = frame_name(frame);
+    // A chain visits each transform at most once; a longer one is a loop in the recording.
+    for _ in 0..transforms.len() {
+        let Some(link) = transforms
+            .iter()
+            .find(|t| frame_name(&t.child_frame_id) == at)
+        else {
+            break;
+        };
+        let (t, q) = (&link.translation, &link.rotation);
+        let rotation = UnitQuaternion::from_quaternion(Quaternion::new(q.w, q.x, q.y, q.z));
+        pose = Isometry3::from_parts(Translation3::new(t.x, t.y, t.z), rotation) * pose;
+        at = frame_name(&link.header.frame_id);
+    }
+    (at, pose)
+}
+
+/// The mount of the sensor whose messages are in `sensor_frame` on the body `body_frame`, in
+/// this project's FRD frames, from the static transforms of a recording; the error says which
+/// link is missing. Both frames are walked up to the root of their tree, so a chain through
+/// any common parent (`odom`, `map`) composes as tf2 would.
+pub(crate) fn mount_from_tf(
+    body_frame: &str,
+    sensor_frame: &str,
+    transforms: &[rosmsg::TransformStamped],
+) -> Result<Mount, String> {
+    let (body_root, body) = to_root(body_frame, transforms);
+    let (sensor_root, sensor) = to_root(sensor_frame, transforms);
+    if body_root != sensor_root {
+        return Err(format!(
+            "/tf_static links no chain from `{}` to `{}` (it ends at `{body_root}` and `{sensor_root}`)",
+            frame_name(body_frame),
+            frame_name(sensor_frame)
+        ));
+    }
+    let flu = body.inverse() * sensor;
+    // The half turn about x on both sides, F R F, keeps a quaternion's w and turns its vector
+    // part as any vector: the same map as the IMU's samples.
+    let q = flu.rotation.quaternion();
+    let axis = flu_to_frd(&rosmsg::Vector3 {
+        x: q.i,
+        y: q.j,
+        z: q.k,
+    });
+    let t = flu.translation.vector;
+    Ok(Mount {
+        rotation: UnitQuaternion::from_quaternion(Quaternion::from_parts(q.w, axis)),
+        translation: flu_to_frd(&rosmsg::Vector3 {
+            x: t.x,
+            y: t.y,
+            z: t.z,
+        }),
+    })
 }
 
 /// Rate of turn and specific force of an `Imu` message, in the IMU's FRD frame. The
@@ -348,5 +415,114 @@ mod tests {
         // applied to the forward axis, points left, which is -y in FRD.
         let turn = nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(0.0, 0.0, gyro.z));
         assert!((turn * Vector3::x()).y < 0.0);
+    }
+
+    fn link(parent: &str, child: &str, xyz: [f64; 3], rpy: [f64; 3]) -> rosmsg::TransformStamped {
+        let q = UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2]);
+        rosmsg::TransformStamped {
+            header: rosmsg::Header {
+                frame_id: parent.into(),
+                ..Default::default()
+            },
+            child_frame_id: child.into(),
+            translation: rosmsg::Vector3 {
+                x: xyz[0],
+                y: xyz[1],
+                z: xyz[2],
+            },
+            rotation: rosmsg::Quaternion {
+                x: q.i,
+                y: q.j,
+                z: q.k,
+                w: q.w,
+            },
+        }
+    }
+
+    fn close(a: &Mount, b: &Mount) -> bool {
+        a.rotation.angle_to(&b.rotation) < 1e-12 && (a.translation - b.translation).norm() < 1e-12
+    }
+
+    #[test]
+    fn a_scanner_pitched_plus_30_deg_about_ros_y_is_pitched_down_30_deg_in_frd() {
+        // +30 deg about y (left) turns x towards -z, down in FLU: a scan plane tilted down.
+        let tf = [link(
+            "base_link",
+            "laser",
+            [0.2, 0.1, 0.3],
+            [0.0, 30f64.to_radians(), 0.0],
+        )];
+        let mount = mount_from_tf("base_link", "laser", &tf).unwrap();
+        let expected = Mount::from_rpy_deg([0.0, -30.0, 0.0], [0.2, -0.1, -0.3]);
+        assert!(close(&mount, &expected), "{mount:?}");
+        // Down in FRD is +z: the front of the plane points down.
+        assert!(((mount.rotation * Vector3::x()).z - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    // The URDF writes 3.14, not pi.
+    #[allow(clippy::approx_constant)]
+    fn the_conversion_is_the_half_turn_the_docs_apply_by_hand_to_a_urdf() {
+        // The backpack's vertical scanner: URDF rpy 0 -1.57 3.14, as its configuration writes it.
+        let rpy = [0.0f64, -1.57, 3.14];
+        let tf = [link(
+            "base_link",
+            "vertical",
+            [0.1251, 0.0937, 0.17772],
+            rpy,
+        )];
+        let mount = mount_from_tf("base_link", "vertical", &tf).unwrap();
+        let [r, p, y] = rpy.map(f64::to_degrees);
+        let by_hand = Mount::from_rpy_deg([r, -p, -y], [0.1251, -0.0937, -0.17772]);
+        assert!(close(&mount, &by_hand), "{mount:?} vs {by_hand:?}");
+    }
+
+    #[test]
+    fn a_two_link_chain_composes_and_a_leading_slash_names_the_same_frame() {
+        let tf = [
+            link(
+                "/base_link",
+                "/mast",
+                [0.0, 0.0, 0.5],
+                [0.0, 0.0, 90f64.to_radians()],
+            ),
+            link("mast", "laser", [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]),
+            link("odom", "base_link", [5.0, 5.0, 0.0], [0.0, 0.0, 1.0]),
+        ];
+        let mount = mount_from_tf("base_link", "laser", &tf).unwrap();
+        // One metre along the mast's x, which is the body's left (ROS y), at 0.5 m up:
+        // FRD (0, -1, -0.5), turned a quarter turn left (-90 deg yaw in FRD).
+        let expected = Mount::from_rpy_deg([0.0, 0.0, -90.0], [0.0, -1.0, -0.5]);
+        assert!(close(&mount, &expected), "{mount:?}");
+        // From the sensor up to the body too: the inverse.
+        let inverse = mount_from_tf("laser", "base_link", &tf).unwrap();
+        assert!(close(
+            &inverse,
+            &Mount {
+                rotation: expected.rotation.inverse(),
+                translation: -(expected.rotation.inverse() * expected.translation),
+            }
+        ));
+        // A frame is its own mount.
+        assert!(close(
+            &mount_from_tf("imu_link", "imu_link", &[]).unwrap(),
+            &Mount::identity()
+        ));
+    }
+
+    #[test]
+    fn a_missing_link_names_both_ends_of_the_chain() {
+        let tf = [link("mast", "laser", [1.0, 0.0, 0.0], [0.0; 3])];
+        let error = mount_from_tf("base_link", "laser", &tf).unwrap_err();
+        assert_eq!(
+            error,
+            "/tf_static links no chain from `base_link` to `laser` (it ends at `base_link` and `mast`)"
+        );
+        // A loop ends rather than spins.
+        let looped = [
+            link("a", "b", [0.0; 3], [0.0; 3]),
+            link("b", "a", [0.0; 3], [0.0; 3]),
+        ];
+        assert!(mount_from_tf("base_link", "a", &looped).is_err());
     }
 }

@@ -49,6 +49,8 @@ pub enum RunError {
     Config(#[from] ConfigErrors),
     #[error("{0}")]
     Port(String),
+    #[error("the {0} leaves its mount to /tf_static, which only a replay of ROS data has: set its rpy_deg and translation_m to run")]
+    MountFromTfStatic(super::config::MountOf),
     #[error(transparent)]
     Recording(#[from] RecordingError),
     #[error(transparent)]
@@ -94,6 +96,10 @@ where
     E::Epoch: Send,
 {
     let (config, config_text) = Config::load_with_text(&options.config)?;
+    // A live run has no /tf_static: every mount must be in the file.
+    if let Some((sensor, _)) = config.missing_mounts().first() {
+        return Err(RunError::MountFromTfStatic(*sensor));
+    }
     let specs = sensor_specs(&config);
     let links = sensor_links(&config);
     sensor_task::wait_for_ports(&links, sensor_task::DEVICE_WAIT, &cancel)

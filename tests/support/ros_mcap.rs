@@ -5,7 +5,7 @@
 //! tests/ros_replay.rs and benches/ros_replay.rs.
 
 use ladar_odometer::daemon::pipeline::Traced;
-use ladar_odometer::sensors::{ImuSample, Scan, ScannerGeometry};
+use ladar_odometer::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
 use rosmsg::encode::encode;
 use rosmsg::{Echoes, Encoding, Header, Imu, Kind, LaserScan, Message, MultiEchoLaserScan};
 use std::collections::BTreeMap;
@@ -13,10 +13,20 @@ use std::f64::consts::TAU;
 use std::path::Path;
 
 /// Where each sensor's messages go: `topics[n]` for sensor number `n` (scanners, then the IMU),
-/// and which scanners write `MultiEchoLaserScan`.
+/// which scanners write `MultiEchoLaserScan`, and the mounts (FRD, as the configuration gives
+/// them) that `/tf_static` carries, none when empty.
 pub struct RosRig<'a> {
     pub topics: &'a [&'a str],
     pub multi_echo: &'a [usize],
+    pub mounts: &'a [Mount],
+}
+
+/// The ROS frame the body is in, the parent of every mount in `/tf_static`.
+pub const BODY_FRAME: &str = "base_link";
+
+/// The frame of a sensor's messages: its topic's, `/imu` in `imu_link`.
+pub fn frame(topic: &str) -> String {
+    format!("{}_link", topic.trim_start_matches('/'))
 }
 
 pub fn time(t: f64) -> rosmsg::Time {
@@ -35,7 +45,7 @@ fn header(t: f64, frame_id: &str) -> Header {
     }
 }
 
-fn scan_message(scan: &Scan, g: &ScannerGeometry, multi_echo: bool) -> Message {
+fn scan_message(scan: &Scan, g: &ScannerGeometry, multi_echo: bool, frame_id: &str) -> Message {
     let step = TAU / f64::from(g.ares);
     let cluster = f64::from(scan.cluster.max(1));
     // ROS angles turn counter-clockwise about z up: the FRD azimuth with its sign turned.
@@ -50,7 +60,7 @@ fn scan_message(scan: &Scan, g: &ScannerGeometry, multi_echo: bool) -> Message {
         range_min: g.dmin_m as f32,
         range_max: g.dmax_m as f32,
     };
-    let header = header(scan.time_of(0, g), "laser");
+    let header = header(scan.time_of(0, g), frame_id);
     let ranges: Vec<f32> = scan.ranges_m.iter().map(|&r| r as f32).collect();
     if multi_echo {
         Message::MultiEchoLaserScan(MultiEchoLaserScan {
@@ -78,14 +88,40 @@ fn flu(v: &nalgebra::Vector3<f64>) -> rosmsg::Vector3 {
     }
 }
 
-fn imu_message(sample: &ImuSample) -> Message {
+/// The mounts as `/tf_static` gives them: each sensor's frame in the body's, turned from FRD to
+/// FLU by the half turn about x on both sides (a quaternion's vector part turns as a vector).
+fn tf_static(rig: &RosRig<'_>, t: f64) -> Message {
+    let transforms = rig
+        .mounts
+        .iter()
+        .zip(rig.topics)
+        .map(|(mount, topic)| {
+            let q = mount.rotation.quaternion();
+            let axis = flu(&q.vector().into());
+            rosmsg::TransformStamped {
+                header: header(t, BODY_FRAME),
+                child_frame_id: frame(topic),
+                translation: flu(&mount.translation),
+                rotation: rosmsg::Quaternion {
+                    x: axis.x,
+                    y: axis.y,
+                    z: axis.z,
+                    w: q.w,
+                },
+            }
+        })
+        .collect();
+    Message::Tf(rosmsg::TfMessage { transforms })
+}
+
+fn imu_message(sample: &ImuSample, frame_id: &str) -> Message {
     let ImuSample::Rate { t, gyro, accel } = sample else {
         panic!("ROS Imu messages carry rates: simulate the IMU with output = \"rate\"");
     };
     let mut not_given = [0.0; 9];
     not_given[0] = -1.0;
     Message::Imu(Imu {
-        header: header(*t, "imu_link"),
+        header: header(*t, frame_id),
         orientation_covariance: not_given,
         angular_velocity: flu(gyro),
         linear_acceleration: flu(accel),
@@ -139,6 +175,14 @@ impl<W: std::io::Write + std::io::Seek> Channels<W> {
     }
 }
 
+fn call_time(call: &Traced) -> Option<f64> {
+    match call {
+        Traced::Scan(scan) => Some(scan.t0),
+        Traced::Imu(sample) => Some(sample.time()),
+        Traced::Geometry(..) | Traced::Stale { .. } => None,
+    }
+}
+
 /// Writes `calls` (what a replay with an `EventTrace` saw) as a ROS recording at `path`, with
 /// a log line channel beside them that the replay must skip.
 pub fn write(path: &Path, encoding: Encoding, calls: &[Traced], rig: &RosRig<'_>) {
@@ -161,6 +205,10 @@ pub fn write(path: &Path, encoding: Encoding, calls: &[Traced], rig: &RosRig<'_>
         sequence: 0,
     };
     let imu_topic = rig.topics[rig.topics.len() - 1];
+    if let (false, Some(first)) = (rig.mounts.is_empty(), calls.iter().find_map(call_time)) {
+        // Latched at the start, as a recorder writes it.
+        channels.write("/tf_static", &tf_static(rig, first), first);
+    }
     let mut geometries = BTreeMap::new();
     for call in calls {
         match call {
@@ -170,12 +218,14 @@ pub fn write(path: &Path, encoding: Encoding, calls: &[Traced], rig: &RosRig<'_>
             Traced::Scan(scan) => {
                 let geometry = &geometries[&scan.sensor];
                 let multi_echo = rig.multi_echo.contains(&scan.sensor);
-                let message = scan_message(scan, geometry, multi_echo);
+                let topic = rig.topics[scan.sensor];
+                let message = scan_message(scan, geometry, multi_echo, &frame(topic));
                 let received = scan.t0 + geometry.scan_period();
-                channels.write(rig.topics[scan.sensor], &message, received);
+                channels.write(topic, &message, received);
             }
             Traced::Imu(sample) => {
-                channels.write(imu_topic, &imu_message(sample), sample.time());
+                let message = imu_message(sample, &frame(imu_topic));
+                channels.write(imu_topic, &message, sample.time());
             }
             Traced::Stale { .. } => {}
         }
