@@ -184,3 +184,38 @@ async fn an_unknown_key_is_one_line_naming_it() {
         "{line}"
     );
 }
+
+#[tokio::test]
+async fn a_mount_left_to_tf_static_is_refused_by_a_live_run_naming_the_sensor() {
+    let dir = scratch("tf-static");
+    let path = dir.join("run.toml");
+    let text = config_text(
+        "tcp:127.0.0.1:1",
+        "tcp:127.0.0.1:2",
+        "serial:/dev/ladar-no-such-imu",
+    )
+    .replacen(
+        "rpy_deg = [0.0, 0.0, 0.0]\ntranslation_m = [0.1, 0.0, 0.0]\n",
+        "topic = \"/horizontal_laser_2d\"\n",
+        1,
+    )
+    .replace("rate_hz = 100", "rate_hz = 100\nrpy_deg = [0.0, 0.0, 0.0]")
+        + "\n[ros]\nbody_frame = \"base_link\"\n";
+    std::fs::write(&path, text).unwrap();
+    let error = run::run(
+        RunOptions {
+            config: path,
+            ..RunOptions::default()
+        },
+        |_, _| EventTrace::default(),
+        CancellationToken::new(),
+    )
+    .await
+    .unwrap_err();
+    let line = error.to_string();
+    assert!(matches!(error, RunError::MountFromTfStatic(_)), "{error:?}");
+    assert!(
+        line.contains("/tf_static") && line.contains("rpy_deg") && !line.contains('\n'),
+        "{line}"
+    );
+}

@@ -550,6 +550,11 @@ impl Config {
             .collect()
     }
 
+    /// Whether the scan planes are far enough apart, once every mount is known.
+    pub fn check_scan_planes_apart(&self) -> Result<(), ConfigErrors> {
+        ConfigErrors::collect(|errors| check_scan_planes_apart(&self.scanners, errors))
+    }
+
     /// Sets a mount [`Config::missing_mounts`] lists, in FRD as `/tf_static` gives it.
     pub fn set_mount(&mut self, of: MountOf, mount: &Mount) {
         let (roll, pitch, yaw) = mount.rotation.euler_angles();
@@ -801,7 +806,12 @@ fn check_scanners(scanners: &[ScannerConfig], errors: &mut ConfigErrors) {
             );
         }
     }
-    // Mounts from /tf_static are known only once the recording is read.
+    check_scan_planes_apart(scanners, errors);
+}
+
+/// The two scan planes must differ for lines of both to make planes. Mounts from /tf_static are
+/// known only once the recording is read, so a mount left out is checked then.
+fn check_scan_planes_apart(scanners: &[ScannerConfig], errors: &mut ConfigErrors) {
     if let [a @ ScannerConfig {
         rpy_deg: Some(_), ..
     }, b @ ScannerConfig {
@@ -1047,6 +1057,58 @@ path = "/var/lib/ladar-odometer"
         assert_eq!(config.output.dir, None);
         let pitch = config.scanners[1].mount().rotation.euler_angles().1;
         assert!((pitch - 20f64.to_radians()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_mount_is_both_keys_or_neither_and_neither_only_for_a_ros_topic() {
+        let half = VALID.replace("translation_m = [0.10, 0.0, 0.0]\n", "");
+        let errors = problems(&half);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            names(&errors[0], "scanner[0].translation_m: missing"),
+            "{errors:?}"
+        );
+
+        let neither = half.replace("rpy_deg = [0.0, 0.0, 0.0]\n", "");
+        let errors = problems(&neither);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(
+            names(&errors[0], "scanner[0].rpy_deg: missing"),
+            "{errors:?}"
+        );
+        assert!(errors[0].contains("[ros] body_frame"), "{errors:?}");
+
+        let from_tf = neither.replace(
+            "range_sigma_m = 0.01\n",
+            "range_sigma_m = 0.01\ntopic = \"/scan\"\n",
+        ) + "\n[ros]\nbody_frame = \"base_link\"\n";
+        // The IMU then needs its own mount or a topic too.
+        let errors = problems(&from_tf);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(names(&errors[0], "imu.rpy_deg: missing"), "{errors:?}");
+        let from_tf = from_tf.replace("[imu]\n", "[imu]\nrpy_deg = [0.0, 0.0, 0.0]\n");
+        let mut config = Config::parse(&from_tf, path()).unwrap();
+        assert_eq!(config.missing_mounts().len(), 1);
+
+        // The mount /tf_static gives is held to the same separation of the scan planes.
+        let tilted = config.scanners[1].mount();
+        config.set_mount(MountOf::Scanner(0), &tilted);
+        let error = config.check_scan_planes_apart().unwrap_err().to_string();
+        assert!(
+            error.contains("scanner[1].rpy_deg") && error.contains("0.0 deg apart"),
+            "{error}"
+        );
+    }
+
+    #[test]
+    fn a_body_frame_is_a_frame_name() {
+        for frame in ["", "/", "base link"] {
+            let text = format!("{VALID}\n[ros]\nbody_frame = \"{frame}\"\n")
+                .replace("[imu]\n", "[imu]\nrpy_deg = [0.0, 0.0, 0.0]\n");
+            let errors = problems(&text);
+            assert_eq!(errors.len(), 1, "{frame:?}: {errors:?}");
+            assert!(names(&errors[0], "ros.body_frame"), "{errors:?}");
+        }
     }
 
     #[test]

@@ -68,6 +68,8 @@ pub enum ReplayError {
     NoBundledRecording(PathBuf),
     #[error(transparent)]
     Recording(#[from] RecordingError),
+    #[error("recording {path}: the mounts its /tf_static gives cannot be used: {errors}")]
+    TfStaticMounts { path: PathBuf, errors: String },
     #[error("recording {path} carries a configuration that no longer loads: {errors}")]
     Config { path: PathBuf, errors: String },
     #[error("{0}")]
@@ -567,7 +569,12 @@ fn mounts_from_tf_static(
         tracing::info!(%sensor, %topic, %frame, ?mount, "mount from /tf_static");
         config.set_mount(*sensor, &mount);
     }
-    Ok(())
+    config
+        .check_scan_planes_apart()
+        .map_err(|errors| ReplayError::TfStaticMounts {
+            path: path.to_path_buf(),
+            errors: errors.to_string(),
+        })
 }
 
 /// Whether a message holds a device's bytes, rather than a ROS message.
