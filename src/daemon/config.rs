@@ -532,7 +532,7 @@ impl Config {
     }
 
     /// The sensors whose mount a replay takes from `/tf_static`, with their topics.
-    pub fn missing_mounts(&self) -> Vec<(MountOf, String)> {
+    pub(crate) fn missing_mounts(&self) -> Vec<(MountOf, String)> {
         if self.ros.body_frame.is_none() {
             return Vec::new();
         }
@@ -551,12 +551,12 @@ impl Config {
     }
 
     /// Whether the scan planes are far enough apart, once every mount is known.
-    pub fn check_scan_planes_apart(&self) -> Result<(), ConfigErrors> {
+    pub(crate) fn check_scan_planes_apart(&self) -> Result<(), ConfigErrors> {
         ConfigErrors::collect(|errors| check_scan_planes_apart(&self.scanners, errors))
     }
 
     /// Sets a mount [`Config::missing_mounts`] lists, in FRD as `/tf_static` gives it.
-    pub fn set_mount(&mut self, of: MountOf, mount: &Mount) {
+    pub(crate) fn set_mount(&mut self, of: MountOf, mount: &Mount) {
         let (roll, pitch, yaw) = mount.rotation.euler_angles();
         let rpy_deg = Some([roll, pitch, yaw].map(f64::to_degrees));
         match of {

@@ -9,7 +9,7 @@
 //! The reader also reads ROS recordings (docs/ros-data.md): a channel whose schema is a
 //! `LaserScan`, `MultiEchoLaserScan` or `Imu` in ROS 1 or ROS 2 encoding gives one message per
 //! ROS message, named by its topic, and the replay maps topics to sensors by the configuration.
-//! `/tf_static` is kept for the mounts it carries ([`RecordingReader::tf_static`]); other ROS
+//! `/tf_static` is kept for the mounts it carries (`RecordingReader::tf_static`); other ROS
 //! channels (`/tf`, images, logs) are skipped, and listed for the error that names
 //! what a recording holds when none of its topics is usable.
 //!

@@ -1,13 +1,16 @@
 //! Filter consistency: NEES against truth, NIS of innovations, and the chi-square quantiles the
 //! innovation gate and the consistency tests compare them with.
 
+#[cfg(test)]
 use nalgebra::{SMatrix, SVector, Vector3};
 
+#[cfg(test)]
 use crate::sensors::TruthSample;
 
 /// A normalised squared error and its degrees of freedom.
+#[cfg(test)]
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Normalised {
+pub(crate) struct Normalised {
     pub value: f64,
     pub dof: usize,
 }
@@ -15,7 +18,8 @@ pub struct Normalised {
 /// Normalised estimation error squared of position, velocity and attitude against truth,
 /// `e^T P^-1 e` with the filter's 9x9 covariance of those blocks (global attitude error,
 /// `Log(q_true q_est^-1)`). `None` when the covariance is not positive definite.
-pub fn nees(
+#[cfg(test)]
+pub(crate) fn nees(
     position: &Vector3<f64>,
     velocity: &Vector3<f64>,
     attitude: &nalgebra::UnitQuaternion<f64>,
@@ -37,7 +41,8 @@ pub fn nees(
 }
 
 /// Normalised innovation squared `y^T S^-1 y`. `None` when `S` is not positive definite.
-pub fn nis<const N: usize>(
+#[cfg(test)]
+pub(crate) fn nis<const N: usize>(
     innovation: &SVector<f64, N>,
     covariance: &SMatrix<f64, N, N>,
 ) -> Option<f64> {
@@ -53,7 +58,7 @@ pub fn mean_nees_interval(dof: usize, count: usize) -> [f64; 2] {
 
 /// `x` such that a chi-square variable with `dof` degrees of freedom is below `x` with
 /// `probability`. Infinite for probability 1 (a disabled gate).
-pub fn chi_square_quantile(probability: f64, dof: usize) -> f64 {
+pub(crate) fn chi_square_quantile(probability: f64, dof: usize) -> f64 {
     if probability >= 1.0 {
         return f64::INFINITY;
     }

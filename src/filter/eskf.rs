@@ -4,12 +4,11 @@
 //! prior, has a file of its own in `eskf/`, as in EKF2's `aid_sources/`, so that an aid is read
 //! (or added) in one place.
 
-use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, StationaryMeans};
 use super::config::FilterConfig;
-use super::consistency::{self, Normalised};
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
@@ -22,7 +21,7 @@ use super::strapdown::{mechanise, ImuIncrement};
 use super::update::{self, GateThresholds, Stacked};
 use crate::config::ConfigErrors;
 use crate::estimate::Estimate;
-use crate::sensors::{ImuSample, TruthSample};
+use crate::sensors::ImuSample;
 
 mod pose_prior;
 mod relative_pose_update;
@@ -764,9 +763,14 @@ impl Eskf {
     }
 
     /// NEES of position, velocity and attitude against truth at the filter time.
-    pub fn nees(&self, truth: &TruthSample) -> Option<Normalised> {
-        let covariance: SMatrix<f64, 9, 9> = self.covariance.fixed_view::<9, 9>(POS, POS).into();
-        consistency::nees(
+    #[cfg(test)]
+    pub(crate) fn nees(
+        &self,
+        truth: &crate::sensors::TruthSample,
+    ) -> Option<super::consistency::Normalised> {
+        let covariance: nalgebra::SMatrix<f64, 9, 9> =
+            self.covariance.fixed_view::<9, 9>(POS, POS).into();
+        super::consistency::nees(
             &self.state.p,
             &self.state.v,
             &self.state.q,

@@ -28,7 +28,8 @@ pub(crate) mod testkit;
 pub(crate) mod update;
 
 pub use config::{FilterConfig, RelativePoseUpdate};
-pub use consistency::{chi_square_quantile, mean_nees_interval, nees, nis, Normalised};
+pub(crate) use consistency::chi_square_quantile;
+pub use consistency::mean_nees_interval;
 pub use eskf::Eskf;
 pub(crate) use eskf::{FilterPhase, ImuOutcome, ResetReason, UpdateReport};
 pub(crate) use history::Pose;

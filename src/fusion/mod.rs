@@ -15,7 +15,8 @@ mod epoch;
 pub mod record;
 mod shared_noise;
 
-pub use config::{FusionConfig, FusionError, FusionSettings};
+pub(crate) use config::FusionConfig;
+pub use config::{FusionError, FusionSettings};
 pub(crate) use record::{EpochOutcome, EpochRecord};
 
 use crate::estimate::{Estimate, IntegrityStatus};

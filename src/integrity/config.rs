@@ -40,9 +40,9 @@ impl Default for IntegrityConfig {
 }
 
 /// Three unknowns plus one redundant row, one row a plane.
-pub const MIN_PLANES_DISPLACEMENT: usize = 4;
+pub(crate) const MIN_PLANES_DISPLACEMENT: usize = 4;
 /// Three unknowns plus one redundant row, two rows a plane.
-pub const MIN_PLANES_ROTATION: usize = 2;
+pub(crate) const MIN_PLANES_ROTATION: usize = 2;
 
 impl IntegrityConfig {
     /// Every problem of the table, one line each.

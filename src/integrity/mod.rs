@@ -12,12 +12,11 @@ mod parity;
 mod protection;
 mod thresholds;
 
-pub use config::{IntegrityConfig, MIN_PLANES_DISPLACEMENT, MIN_PLANES_ROTATION};
-pub use exclusion::without_planes;
+pub use config::IntegrityConfig;
+pub use exclusion::{without_planes, IntegrityMonitor, SolveKind};
 pub(crate) use exclusion::{EpochReport, SolveReport};
-pub use exclusion::{IntegrityMonitor, SolveKind};
-pub use parity::{parity_space, ParitySpace, PlaneTest, SolveTest, Untestable};
-pub use thresholds::{chi_square_upper_quantile, normal_upper_quantile, Thresholds};
+pub use parity::SolveTest;
+pub use thresholds::{chi_square_upper_quantile, Thresholds};
 
 #[cfg(test)]
 mod tests;

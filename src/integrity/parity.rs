@@ -57,7 +57,7 @@ pub enum Untestable {
 
 /// The parity space of a system, kept for callers that want to look inside the test.
 #[derive(Debug, Clone, PartialEq)]
-pub struct ParitySpace {
+pub(crate) struct ParitySpace {
     /// `L` with `R = L L^T`.
     pub square_root: DMatrix<f64>,
     /// `G = V L^-1`: raw measurements to parity (the paper's `Q_p` with weights).
@@ -245,7 +245,10 @@ fn check_shape(system: &LinearSystem) -> Result<(), Untestable> {
 
 /// Parity space of `system`, refusing (rather than inverting) a geometry whose whitened
 /// condition number exceeds `max_condition`.
-pub fn parity_space(system: &LinearSystem, max_condition: f64) -> Result<ParitySpace, Untestable> {
+pub(crate) fn parity_space(
+    system: &LinearSystem,
+    max_condition: f64,
+) -> Result<ParitySpace, Untestable> {
     check_shape(system)?;
     let m = system.rows();
     if m <= 3 {

@@ -1,5 +1,7 @@
 //! Seeded statistical and structural tests of the integrity layer on synthetic solves.
 
+use super::parity::{parity_space, Untestable};
+use super::thresholds::normal_upper_quantile;
 use super::*;
 use crate::estimate::IntegrityStatus;
 use crate::least_squares::{LinearSystem, Solution, SolveError};

@@ -88,7 +88,7 @@ fn plane_threshold(false_alarm: f64, plane_dof: usize, tests: usize) -> f64 {
 }
 
 /// `z` with `P(N(0,1) > z) = alpha`.
-pub fn normal_upper_quantile(alpha: f64) -> f64 {
+pub(crate) fn normal_upper_quantile(alpha: f64) -> f64 {
     std::f64::consts::SQRT_2 * erfc_inv(2.0 * alpha)
 }
 

@@ -21,7 +21,7 @@ const PRIOR_SIGMA_M: f64 = 0.05;
 const STATIONARY_EPOCH_GAP_S: f64 = 1.0;
 
 /// The patches (scene indices) the two lines of a plane hit, by majority of their readings.
-pub type PlaneLabel = [Option<usize>; 2];
+pub(crate) type PlaneLabel = [Option<usize>; 2];
 
 /// One epoch's planes with their labels.
 #[derive(Debug, Clone)]
@@ -193,7 +193,10 @@ impl Rig {
 }
 
 /// The core set up with the simulator's two scanners and their ranging sigmas.
-pub fn odometer_for(sim: &Simulator, config: OdometryConfig) -> Result<Odometer, StudyError> {
+pub(crate) fn odometer_for(
+    sim: &Simulator,
+    config: OdometryConfig,
+) -> Result<Odometer, StudyError> {
     let scanners = sim.scanners();
     if scanners.len() != 2 {
         return Err(StudyError::ScannerCount(scanners.len()));
@@ -239,7 +242,7 @@ fn majority(labels: &[Option<usize>]) -> Option<usize> {
 }
 
 /// Pairs planes of i and j whose lines hit the same patches (in either order), one to one.
-pub fn associate(i: &LabelledEpoch, j: &LabelledEpoch) -> Vec<PlaneMatch> {
+pub(crate) fn associate(i: &LabelledEpoch, j: &LabelledEpoch) -> Vec<PlaneMatch> {
     let key = |label: &PlaneLabel| match *label {
         [Some(a), Some(b)] => Some((a.min(b), a.max(b))),
         _ => None,

@@ -12,7 +12,7 @@ pub use check::{
     integrity_check, integrity_check_with_progress, pairs_to_run, plane_figures, studied_planes,
     DetectionRow, IntegrityCheckArgs, PlaneFigures,
 };
-pub use harness::{associate, odometer_for, Fault, LabelledEpoch, PlaneLabel, Rig};
+pub use harness::{Fault, LabelledEpoch, Rig};
 pub use pairs::{check_pair, run_pair, PairOutcome};
 
 use crate::odometry::OdometryConfig;
