@@ -127,7 +127,7 @@ impl fmt::Display for ReplaySummary {
         for (name, c) in &self.sensors {
             writeln!(
                 f,
-                "  {name}: {} scans, {} IMU samples, {} decode errors, {} dropped (before any PP geometry, or without device time), {} lost packets, {} clock restarts",
+                "  {name}: {} scans, {} IMU samples, {} decode errors, {} dropped (decoded but unusable: no scanner geometry yet, no time, or a field missing), {} lost packets, {} clock restarts",
                 c.scans, c.imu_samples, c.decode_errors, c.dropped, c.lost_packets, c.clock_restarts
             )?;
         }
