@@ -10,20 +10,15 @@ mod ros_mcap;
 
 use divan::Bencher;
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
-use ladar_odometer::daemon::pipeline::EventTrace;
-use ladar_odometer::daemon::recording::{ReadMode, Recording};
 use ladar_odometer::daemon::replay::{self, ReplayOptions};
-use ladar_odometer::daemon::simulate;
-use ladar_sim::{ImuOutput, Scenario};
-use ros_mcap::RosRig;
+use ladar_sim::Scenario;
+use ros_mcap::{RosRig, TOPICS};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 fn main() {
     divan::main();
 }
-
-const TOPICS: [&str; 3] = ["/horizontal_laser_2d", "/vertical_laser_2d", "/imu"];
 
 /// The ROS 2 and ROS 1 recordings and the configuration that reads them.
 struct Recordings {
@@ -39,36 +34,16 @@ fn recordings() -> &'static Recordings {
         std::fs::create_dir_all(&dir).unwrap();
         let scenario_file =
             Path::new(env!("CARGO_MANIFEST_DIR")).join("data/scenarios/hallway-hover-40hz.toml");
-        let mut scenario = Scenario::load(&scenario_file).unwrap();
-        scenario.imu.as_mut().unwrap().output = ImuOutput::Rate;
-        let scenario_path = dir.join("scenario.toml");
-        std::fs::write(&scenario_path, scenario.to_toml().unwrap()).unwrap();
-        let raw = dir.join("raw.mcap");
-        simulate::simulate(scenario_path.to_str().unwrap(), &raw).unwrap();
-        let options = ReplayOptions {
-            recording: raw.clone(),
-            ..ReplayOptions::default()
-        };
-        let (_, trace) = replay::replay(&options, |_, _| EventTrace::default()).unwrap();
-        let mut config = Recording::open(&raw, ReadMode::Strict)
-            .unwrap()
-            .config_toml
-            .unwrap();
-        let names = scenario
-            .scanners
-            .iter()
-            .map(|s| s.name.as_str())
-            .chain(["imu"]);
-        for (name, topic) in names.zip(TOPICS) {
-            let line = format!("\nname = \"{name}\"\n");
-            config = config.replace(&line, &format!("{line}topic = \"{topic}\"\n"));
-        }
+        let simulated = ros_mcap::simulate_with_topics(
+            Scenario::load(&scenario_file).unwrap(),
+            &dir.join("raw.mcap"),
+        );
         let recordings = Recordings {
             ros2: dir.join("ros2.mcap"),
             ros1: dir.join("ros1.mcap"),
             config: dir.join("config.toml"),
         };
-        std::fs::write(&recordings.config, config).unwrap();
+        std::fs::write(&recordings.config, &simulated.ros_config).unwrap();
         for (path, encoding, multi_echo) in [
             (&recordings.ros2, rosmsg::Encoding::Cdr, &[][..]),
             (&recordings.ros1, rosmsg::Encoding::Ros1, &[1][..]),
@@ -78,7 +53,7 @@ fn recordings() -> &'static Recordings {
                 multi_echo,
                 mounts: &[],
             };
-            ros_mcap::write(path, encoding, &trace.calls, &rig);
+            ros_mcap::write(path, encoding, &simulated.calls, &rig);
         }
         recordings
     })

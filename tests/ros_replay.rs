@@ -8,13 +8,11 @@ mod ros_mcap;
 use ladar_odometer::daemon::config::Config;
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::pipeline::{EpochCounts, Estimator, EventTrace, Traced};
-use ladar_odometer::daemon::recording::{ReadMode, Recording};
 use ladar_odometer::daemon::replay::{self, ReplayError, ReplayOptions, ReplaySummary};
-use ladar_odometer::daemon::simulate;
 use ladar_odometer::estimate::Estimate;
 use ladar_odometer::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
-use ladar_sim::{ImuOutput, Scenario};
-use ros_mcap::RosRig;
+use ladar_sim::Scenario;
+use ros_mcap::{RosRig, TOPICS};
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -23,8 +21,6 @@ fn scratch(name: &str) -> PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)
 }
-
-const TOPICS: [&str; 3] = ["/horizontal_laser_2d", "/vertical_laser_2d", "/imu"];
 
 /// The hallway flight, its first 6 s of motion after the 10 s stationary start, with an IMU
 /// that outputs rates (ROS `Imu` messages carry rates, not increments); simulated once and
@@ -41,33 +37,13 @@ fn flight() -> &'static Flight {
     FLIGHT.get_or_init(|| {
         let mut scenario = Scenario::builtin("hallway-flight").unwrap();
         scenario.duration_s = 16.0;
-        scenario.imu.as_mut().unwrap().output = ImuOutput::Rate;
-        let scenario_path = scratch("flight.toml");
-        std::fs::write(&scenario_path, scenario.to_toml().unwrap()).unwrap();
         let raw = scratch("flight.mcap");
-        simulate::simulate(scenario_path.to_str().unwrap(), &raw).unwrap();
-        let options = ReplayOptions {
-            recording: raw.clone(),
-            ..ReplayOptions::default()
-        };
-        let (_, trace) = replay::replay(&options, |_, _| EventTrace::default()).unwrap();
-        let recorded = Recording::open(&raw, ReadMode::Strict).unwrap();
-        let mut config = recorded.config_toml.unwrap();
-        let names = scenario
-            .scanners
-            .iter()
-            .map(|s| s.name.as_str())
-            .chain(["imu"]);
-        for (name, topic) in names.zip(TOPICS) {
-            let line = format!("\nname = \"{name}\"\n");
-            assert!(config.contains(&line), "{config}");
-            config = config.replace(&line, &format!("{line}topic = \"{topic}\"\n"));
-        }
+        let simulated = ros_mcap::simulate_with_topics(scenario, &raw);
         let ros_config = scratch("flight-ros.toml");
-        std::fs::write(&ros_config, config).unwrap();
+        std::fs::write(&ros_config, &simulated.ros_config).unwrap();
         Flight {
             raw,
-            calls: trace.calls,
+            calls: simulated.calls,
             ros_config,
         }
     })

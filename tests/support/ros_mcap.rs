@@ -4,8 +4,12 @@
 //! rounded to what ROS messages carry (float32 ranges and rates, nanosecond stamps). Shared by
 //! tests/ros_replay.rs and benches/ros_replay.rs.
 
-use ladar_odometer::daemon::pipeline::Traced;
+use ladar_odometer::daemon::pipeline::{EventTrace, Traced};
+use ladar_odometer::daemon::recording::{ReadMode, Recording};
+use ladar_odometer::daemon::replay::{self, ReplayOptions};
+use ladar_odometer::daemon::simulate;
 use ladar_odometer::sensors::{ImuSample, Mount, Scan, ScannerGeometry};
+use ladar_sim::{ImuOutput, Scenario};
 use rosmsg::encode::encode;
 use rosmsg::{Echoes, Encoding, Header, Imu, Kind, LaserScan, Message, MultiEchoLaserScan};
 use std::collections::BTreeMap;
@@ -19,6 +23,49 @@ pub struct RosRig<'a> {
     pub topics: &'a [&'a str],
     pub multi_echo: &'a [usize],
     pub mounts: &'a [Mount],
+}
+
+/// The topics of the two scanners and the IMU, in sensor order.
+pub const TOPICS: [&str; 3] = ["/horizontal_laser_2d", "/vertical_laser_2d", "/imu"];
+
+/// What the replay of a scenario's raw-byte recording fed the fusion, and the recorded
+/// configuration with each sensor's ROS topic ([`TOPICS`]) added.
+pub struct Simulated {
+    pub calls: Vec<Traced>,
+    pub ros_config: String,
+}
+
+/// Simulates `scenario` with rate output (ROS `Imu` messages carry rates, not increments) into
+/// the raw-byte recording `raw` (the scenario file beside it), and replays it once to trace
+/// what the fusion took.
+pub fn simulate_with_topics(mut scenario: Scenario, raw: &Path) -> Simulated {
+    scenario.imu.as_mut().unwrap().output = ImuOutput::Rate;
+    let scenario_path = raw.with_extension("toml");
+    std::fs::write(&scenario_path, scenario.to_toml().unwrap()).unwrap();
+    simulate::simulate(scenario_path.to_str().unwrap(), raw).unwrap();
+    let options = ReplayOptions {
+        recording: raw.to_path_buf(),
+        ..ReplayOptions::default()
+    };
+    let (_, trace) = replay::replay(&options, |_, _| EventTrace::default()).unwrap();
+    let mut ros_config = Recording::open(raw, ReadMode::Strict)
+        .unwrap()
+        .config_toml
+        .unwrap();
+    let names = scenario
+        .scanners
+        .iter()
+        .map(|s| s.name.as_str())
+        .chain(["imu"]);
+    for (name, topic) in names.zip(TOPICS) {
+        let line = format!("\nname = \"{name}\"\n");
+        assert!(ros_config.contains(&line), "{ros_config}");
+        ros_config = ros_config.replace(&line, &format!("{line}topic = \"{topic}\"\n"));
+    }
+    Simulated {
+        calls: trace.calls,
+        ros_config,
+    }
 }
 
 /// The ROS frame the body is in, the parent of every mount in `/tf_static`.
