@@ -348,6 +348,37 @@ fn study_bare_corridor_started_in_motion_20_runs() {
 
 #[test]
 #[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_open_room_20_runs() {
+    let trials: Vec<Trial> = (0..20)
+        .map(|k| Trial::new("open-room", 100 + k, 0.0))
+        .collect();
+    study("open-room, 20 runs", &trials)
+        .0
+        .assert_honest("open-room");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_open_room_started_in_motion_20_runs() {
+    let trials = starts_in_motion("open-room", 20, 90.0, 30.0);
+    study("open-room started in motion, 20 runs", &trials)
+        .0
+        .assert_honest("open-room started in motion");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_hall_walk_20_runs() {
+    let trials: Vec<Trial> = (0..20)
+        .map(|k| Trial::new("hall-walk", 100 + k, 0.0))
+        .collect();
+    study("hall-walk, 20 runs", &trials)
+        .0
+        .assert_honest("hall-walk");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_flight_started_in_motion_20_runs() {
     let trials = starts_in_motion("hallway-flight", 20, 33.0, 10.0);
     study("hallway-flight started in motion, 20 runs", &trials)

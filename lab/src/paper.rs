@@ -9,8 +9,8 @@ use ladar_odometer::integrity_check::{
     StudyError,
 };
 use ladar_odometer::least_squares::LinearSystem;
-use ladar_sim::{PaperBias, Patch, Scenario};
-use nalgebra::{DMatrix, UnitQuaternion, Vector3};
+use ladar_sim::{wall_facing_origin, PaperBias, Scenario};
+use nalgebra::DMatrix;
 use serde::Serialize;
 use std::fmt;
 
@@ -202,36 +202,18 @@ fn parity_sigmas(system: &LinearSystem) -> Vec<f64> {
 pub fn six_plane_scenario() -> Scenario {
     let mut scenario = Scenario::paper_sim(PaperBias::None);
     scenario.name = "paper-sim-six-planes".into();
+    scenario.scene.patches.push(wall_facing_origin(
+        "plane-5",
+        -42.5,
+        4.0,
+        [10.0, -30.0],
+        16.0,
+    ));
     scenario
         .scene
         .patches
-        .push(wall("plane-5", -42.5, 4.0, 10.0, -30.0));
+        .push(wall_facing_origin("plane-6", 2.5, 6.0, [0.0, 30.0], 16.0));
     scenario
-        .scene
-        .patches
-        .push(wall("plane-6", 2.5, 6.0, 0.0, 30.0));
-    scenario
-}
-
-/// A wall facing the origin like paper-sim's: centre at `range` along azimuth `az_deg`, skewed
-/// about the vertical and tilted about its horizontal axis, 16 deg of azimuth wide.
-fn wall(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64) -> Patch {
-    let az = az_deg.to_radians();
-    let towards = Vector3::new(az.cos(), az.sin(), 0.0);
-    let skew = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), skew_deg.to_radians());
-    let horizontal = skew * Vector3::z().cross(&towards).normalize();
-    let tilt = UnitQuaternion::from_axis_angle(
-        &nalgebra::Unit::new_normalize(horizontal),
-        tilt_deg.to_radians(),
-    );
-    let up_in_plane = tilt * -Vector3::z();
-    Patch::new(
-        name,
-        (towards * range).into(),
-        horizontal.into(),
-        up_in_plane.into(),
-        [range * 8f64.to_radians().tan(), 1.5],
-    )
 }
 
 type SixPlaneFigures = (Vec<PlaneFigures>, ExclusionRate, ExclusionRate);

@@ -38,9 +38,16 @@ pub(crate) const PAPER_EPOCH_S: f64 = 1.0;
 /// recording and the emulators use the IMU, never the paper's studies).
 const PAPER_RAMP_S: f64 = 0.2;
 
-/// Wall facing the origin: centre at `range` along azimuth `az_deg` (from north, to the right),
-/// normal towards the origin, then skewed about the vertical and tilted about its horizontal axis.
-fn paper_plane(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64) -> Patch {
+/// Wall facing the origin, as the paper's scenes place them: centre at `range` along azimuth
+/// `az_deg` (from north, to the right), normal towards the origin, then skewed about the
+/// vertical and tilted about its horizontal axis; `width_deg` of azimuth wide, 3 m tall.
+pub fn wall_facing_origin(
+    name: &str,
+    az_deg: f64,
+    range: f64,
+    [skew_deg, tilt_deg]: [f64; 2],
+    width_deg: f64,
+) -> Patch {
     let az = az_deg.to_radians();
     let towards = Vector3::new(az.cos(), az.sin(), 0.0);
     let skew = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), skew_deg.to_radians());
@@ -50,15 +57,18 @@ fn paper_plane(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64
         tilt_deg.to_radians(),
     );
     let up_in_plane = tilt * -Vector3::z();
-    // About 50 beams of 0.5 deg: 25 deg of azimuth.
-    let half_width = range * 12.5f64.to_radians().tan();
     Patch::new(
         name,
         (towards * range).into(),
         horizontal.into(),
         up_in_plane.into(),
-        [half_width, 1.5],
+        [range * (width_deg / 2.0).to_radians().tan(), 1.5],
     )
+}
+
+/// A paper-sim plane: about 50 beams of 0.5 deg, 25 deg of azimuth.
+fn paper_plane(name: &str, az_deg: f64, range: f64, skew_deg: f64, tilt_deg: f64) -> Patch {
+    wall_facing_origin(name, az_deg, range, [skew_deg, tilt_deg], 25.0)
 }
 
 pub(crate) fn paper_sim(bias: PaperBias) -> Scenario {

@@ -25,7 +25,7 @@ mod scenario;
 mod scene;
 mod trajectory;
 
-pub use builtin::{PaperBias, PAPER_SCANNER};
+pub use builtin::{wall_facing_origin, PaperBias, PAPER_SCANNER};
 pub use imu::{ImuConfig, ImuOutput, TriadErrors};
 pub use scanner::{ScannerConfig, ScannerModel, SimScanner};
 pub use scenario::{Scenario, ScenarioError, BUILTIN_NAMES};
