@@ -150,6 +150,39 @@ fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> 
     )
 }
 
+/// A wall along `y` from `x[0]` to `x[1]` with a doorway over `doorway`: the wall on either
+/// side and the lintel above, from `ceiling` down to `floor` and to `door_top`.
+fn wall_with_doorway(
+    y: f64,
+    x: [f64; 2],
+    doorway: [f64; 2],
+    [ceiling, floor, door_top]: [f64; 3],
+) -> [Patch; 3] {
+    [
+        wall(
+            "right-wall-rear",
+            [x[0], y],
+            [doorway[0], y],
+            ceiling,
+            floor,
+        ),
+        wall(
+            "right-wall-front",
+            [doorway[1], y],
+            [x[1], y],
+            ceiling,
+            floor,
+        ),
+        wall(
+            "lintel",
+            [doorway[0], y],
+            [doorway[1], y],
+            ceiling,
+            door_top,
+        ),
+    ]
+}
+
 /// Horizontal patch at height `z` over `[x0, x1] x [y0, y1]`.
 fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     Patch::new(
@@ -192,36 +225,25 @@ pub(crate) fn office_door() -> Scenario {
         },
     });
     let scene = Scene {
-        patches: vec![
+        patches: [
             wall("front-wall", [front, left], [front, right], ceiling, floor),
             wall("left-wall", [back, left], [front, left], ceiling, floor),
-            wall(
-                "right-wall-rear",
-                [back, right],
-                [doorway[0], right],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "right-wall-front",
-                [doorway[1], right],
-                [front, right],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "lintel",
-                [doorway[0], right],
-                [doorway[1], right],
-                ceiling,
-                door_top,
-            ),
+        ]
+        .into_iter()
+        .chain(wall_with_doorway(
+            right,
+            [back, front],
+            doorway,
+            [ceiling, floor, door_top],
+        ))
+        .chain([
             wall("back-wall", [back, left], [back, right], ceiling, floor),
             wall("corridor-wall", [-2.0, 3.5], [3.0, 3.5], ceiling, floor),
             slab("ceiling", [back, front], [left, right], ceiling),
             slab("floor", [back, front], [left, right], floor),
             door,
-        ],
+        ])
+        .collect(),
     };
     let urg = |name: &str, rpy: [f64; 3], z: f64| ScannerConfig {
         mount_translation_m: [0.0, 0.0, z],
@@ -256,31 +278,19 @@ fn hallway(back_x: f64, end_x: f64, door: Profile) -> Scene {
     let (ceiling, floor, door_top) = (-1.3, 1.2, -0.8);
     let (door_from, door_to) = (0.3, 1.2);
     let mut scene = Scene {
-        patches: vec![
+        patches: [
             slab("floor", [back_x, end_x], [-1.1, 1.1], floor),
             slab("ceiling", [back_x, end_x], [-1.1, 1.1], ceiling),
             wall("left-wall", [back_x, -1.1], [end_x, -1.1], ceiling, floor),
-            wall(
-                "right-wall-rear",
-                [back_x, 1.1],
-                [door_from, 1.1],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "right-wall-front",
-                [door_to, 1.1],
-                [end_x, 1.1],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "lintel",
-                [door_from, 1.1],
-                [door_to, 1.1],
-                ceiling,
-                door_top,
-            ),
+        ]
+        .into_iter()
+        .chain(wall_with_doorway(
+            1.1,
+            [back_x, end_x],
+            [door_from, door_to],
+            [ceiling, floor, door_top],
+        ))
+        .chain([
             wall("end-wall", [end_x, -1.1], [end_x, 1.1], ceiling, floor),
             wall("back-wall", [back_x, -1.1], [back_x, 1.1], ceiling, floor),
             wall("room-wall", [-1.0, 3.5], [2.5, 3.5], ceiling, floor),
@@ -296,7 +306,8 @@ fn hallway(back_x: f64, end_x: f64, door: Profile) -> Scene {
                 axis: [0.0, 0.0, -1.0],
                 angle_deg: door,
             }),
-        ],
+        ])
+        .collect(),
     };
     scene.add_box(
         "cabinet",
@@ -529,33 +540,21 @@ pub(crate) fn open_room() -> Scenario {
         },
     });
     let mut scene = Scene {
-        patches: vec![
+        patches: [
             slab("floor", [back, front], [left, right], floor),
             slab("ceiling", [back, front], [left, right], ceiling),
             wall("back-wall", [back, left], [back, right], ceiling, floor),
             wall("front-wall", [front, left], [front, right], ceiling, floor),
             wall("left-wall", [back, left], [front, left], ceiling, floor),
-            wall(
-                "right-wall-rear",
-                [back, right],
-                [doorway[0], right],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "right-wall-front",
-                [doorway[1], right],
-                [front, right],
-                ceiling,
-                floor,
-            ),
-            wall(
-                "lintel",
-                [doorway[0], right],
-                [doorway[1], right],
-                ceiling,
-                door_top,
-            ),
+        ]
+        .into_iter()
+        .chain(wall_with_doorway(
+            right,
+            [back, front],
+            doorway,
+            [ceiling, floor, door_top],
+        ))
+        .chain([
             wall(
                 "corridor-wall",
                 [-2.0, corridor],
@@ -578,7 +577,8 @@ pub(crate) fn open_room() -> Scenario {
                     amplitude: 5.0,
                 },
             ),
-        ],
+        ])
+        .collect(),
     };
     let middle = (ceiling + floor) / 2.0;
     let height = (floor - ceiling) / 2.0;
