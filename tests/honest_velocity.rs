@@ -347,7 +347,7 @@ fn study_bare_corridor_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study (docs/autopilot.md)"]
+#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
 fn study_open_room_20_runs() {
     let trials: Vec<Trial> = (0..20)
         .map(|k| Trial::new("open-room", 100 + k, 0.0))
@@ -358,7 +358,7 @@ fn study_open_room_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study (docs/autopilot.md)"]
+#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
 fn study_open_room_started_in_motion_20_runs() {
     let trials = starts_in_motion("open-room", 20, 90.0, 30.0);
     study("open-room started in motion, 20 runs", &trials)
@@ -367,7 +367,7 @@ fn study_open_room_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study (docs/autopilot.md)"]
+#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
 fn study_hall_walk_20_runs() {
     let trials: Vec<Trial> = (0..20)
         .map(|k| Trial::new("hall-walk", 100 + k, 0.0))
