@@ -88,7 +88,6 @@ impl Message {
 fn fly(trial: &Trial) -> Vec<Message> {
     let mut simulator = Simulator::with_seed(&trial.scenario, trial.seed).unwrap();
     let mut settings = FusionSettings::default();
-    settings.odometry.accept_parallel_lines = true;
     settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
     let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let policy = QualityPolicy::default();
@@ -347,7 +346,7 @@ fn study_bare_corridor_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
+#[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_open_room_20_runs() {
     let trials: Vec<Trial> = (0..20)
         .map(|k| Trial::new("open-room", 100 + k, 0.0))
@@ -358,7 +357,7 @@ fn study_open_room_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
+#[ignore = "release-mode study; fails today: mean NEES 1.8 along body y, from one start (docs/autopilot.md)"]
 fn study_open_room_started_in_motion_20_runs() {
     let trials = starts_in_motion("open-room", 20, 90.0, 30.0);
     study("open-room started in motion, 20 runs", &trials)
@@ -367,7 +366,7 @@ fn study_open_room_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study; fails today, the open target of docs/autopilot.md \"Rooms and halls\""]
+#[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_hall_walk_20_runs() {
     let trials: Vec<Trial> = (0..20)
         .map(|k| Trial::new("hall-walk", 100 + k, 0.0))
@@ -387,7 +386,7 @@ fn study_flight_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study (docs/autopilot.md)"]
+#[ignore = "release-mode study; fails today: one start of 20, in the board's approach, is first usable after 11.2 s (docs/autopilot.md)"]
 fn study_hover_started_in_motion_20_runs() {
     let trials = starts_in_motion("hallway-hover", 20, 400.0, 60.0);
     let (verdict, first) = study("hallway-hover started in motion, 20 runs", &trials);

@@ -43,13 +43,11 @@ fn scenario(name: &str, rig: Rig, epoch_rate_hz: f64) -> Scenario {
     scenario
 }
 
-/// The fusion as the daemon replays a simulated recording (`simulate` writes
-/// `accept_parallel_lines = true` and the still start into the rig's configuration): the
-/// paper's rig draws parallel lines on every wall square to its pitch axis.
+/// The fusion as the daemon replays a simulated recording (`simulate` writes the still start
+/// into the rig's configuration).
 fn settings(epoch_rate_hz: f64) -> FusionSettings {
     let mut settings = FusionSettings::default();
     settings.filter.stationary_start_s = STILL_S;
-    settings.odometry.accept_parallel_lines = true;
     settings.fusion.epoch_rate_hz = epoch_rate_hz;
     settings
 }

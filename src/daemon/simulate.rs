@@ -369,10 +369,10 @@ pub fn rig_config(scenario: &Scenario) -> Result<String, SimulateError> {
 /// Fusion keys the simulated rig needs beyond the defaults, so that replaying the recording
 /// runs the fusion as it should run on that rig.
 fn fusion_tables(trajectory: &Trajectory) -> String {
-    // The simulated scenes are rectangular rooms and the scanners often pitch about the same
-    // axis, so lines on the floor and end walls are parallel: the odometry default refuses
-    // planes from them and most epochs would go without a full solve.
-    let mut text = String::from("\n[odometry]\naccept_parallel_lines = true\n");
+    // The scanners of the simulated rigs often pitch about the same axis, so their lines on the
+    // floor and on the end walls are parallel; the odometry defaults keep the planes they make
+    // while those are level or plumb (`building_max_tilt_deg`), which the rooms' are.
+    let mut text = String::new();
     // Zero-velocity updates during motion would pull the filter off the truth, so the
     // stationary start ends when the scenario's motion begins.
     if let Some(still_s) = stationary_until(trajectory) {

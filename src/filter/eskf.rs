@@ -779,6 +779,12 @@ impl Eskf {
         )
     }
 
+    /// Whether enough relative poses were fused since the last (re)start for the estimate to be
+    /// trusted (`FilterConfig::converged_after_epochs`).
+    pub(crate) fn converged(&self) -> bool {
+        self.converged
+    }
+
     pub(crate) fn phase(&self) -> FilterPhase {
         self.phase
     }

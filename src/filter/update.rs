@@ -55,6 +55,15 @@ impl Observability {
         self.rank
     }
 
+    /// Whether the unit vector `u` lies in the observable subspace to within the angle whose
+    /// cosine is `cosine`.
+    pub(crate) fn contains(&self, u: &Vector3<f64>, cosine: f64) -> bool {
+        let projected: f64 = (0..self.rank)
+            .map(|i| self.basis.column(i).dot(u).powi(2))
+            .sum();
+        projected.sqrt() >= cosine
+    }
+
     #[cfg(test)]
     pub(crate) fn observable_directions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
         (0..self.rank).map(|i| self.basis.column(i).into())

@@ -90,6 +90,7 @@ impl Anchored {
             }; 2],
             crossing: false,
             confirmed: false,
+            extent_m: 0.0,
         };
         // The row's normal is the mean of n_i and C n_j: make both u.
         let current_normal = self.rotation.map_or(u, |c| c.inverse() * u);
@@ -139,6 +140,7 @@ mod tests {
             }; 2],
             crossing: true,
             confirmed: false,
+            extent_m: 1.0,
         }
     }
 

@@ -7,6 +7,7 @@ use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 use super::anchor::Anchored;
 use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, WithCovariance};
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
+use super::witnesses::{CheckedLone, LoneWitnesses};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
 use crate::filter::{
@@ -45,10 +46,13 @@ struct Cleared {
     /// protects.
     displacement_observability: Observability,
     excluded: Vec<usize>,
+    /// The directions one plane alone observes, with the filter prediction's check.
+    lone: CheckedLone,
 }
 
 impl Fusion {
     pub(super) fn run_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
+        self.forget_provisional_after_restart();
         let mut current = std::mem::take(&mut self.current);
         let confirmed = self.extract(scans, t_ref, &mut current);
         let mut record = planes_record(&current);
@@ -91,11 +95,19 @@ impl Fusion {
                 _ => Isometry3::identity(),
             }
         };
+        let down = reference.map(|pose| pose.q.inverse_transform_vector(&Vector3::z()));
         let scans = [&scans[0], &scans[1]];
         let (keyframe, prior) = match self.confirmation(t_ref) {
             Confirmation::Against { keyframe, prior } => (self.recent.at(keyframe), prior),
             unscreened => {
-                self.odometer.extract_into(scans, t_ref, &pose_at, out);
+                self.odometer.extract_admitted_into(
+                    scans,
+                    t_ref,
+                    &pose_at,
+                    down,
+                    &mut |_| true,
+                    out,
+                );
                 return matches!(unscreened, Confirmation::NotNeeded);
             }
         };
@@ -109,7 +121,7 @@ impl Fusion {
                 .any(|planes| matching::has_counterpart(planes, plane, &prior, &gates))
         };
         self.odometer
-            .extract_admitted_into(scans, t_ref, &pose_at, &mut admit, out);
+            .extract_admitted_into(scans, t_ref, &pose_at, down, &mut admit, out);
         true
     }
 
@@ -170,7 +182,7 @@ impl Fusion {
         let epoch = self.odometer.solve(previous, current, &prior);
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
-        let cleared = self.clear(&epoch, &report, anchored.as_ref());
+        let cleared = self.clear(previous, current, &epoch, &report, anchored.as_ref());
         let scale = self.config.measurement_covariance_scale;
         let mut measurement = measurement(previous.t_ref, current.t_ref, &cleared, scale);
         let mut noise_maps = Vec::new();
@@ -198,6 +210,9 @@ impl Fusion {
             .translation
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
+        if record.outcome == EpochOutcome::Fused {
+            self.settle_provisional(&cleared, previous.t_ref);
+        }
         noise_maps
     }
 
@@ -255,6 +270,8 @@ impl Fusion {
     /// under-determined epoch). Without: every solve that succeeded, with all planes.
     fn clear(
         &self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
         epoch: &OdometryEpoch,
         report: &EpochReport,
         anchored: Option<&Anchored>,
@@ -271,22 +288,92 @@ impl Fusion {
                     None => epoch.displacement.as_ref().ok().cloned(),
                 },
                 excluded: Vec::new(),
+                lone: CheckedLone::default(),
             };
         }
-        let mut unobservable = anchored.map_or_else(Vec::new, |a| a.unobservable.clone());
-        unobservable.extend(unprotected(&report.displacement));
         let part = |solve: &crate::integrity::SolveReport| match (&report.status, &solve.status) {
             (IntegrityStatus::DetectedNotIsolable, _) => None,
             (_, status) if status.usable() => solve.solution.clone(),
             _ => None,
         };
+        let (rotation, displacement) = (part(&report.rotation), part(&report.displacement));
+        let lone = self.checked_lone_witnesses(
+            previous,
+            current,
+            epoch,
+            &report.excluded,
+            [rotation.as_ref(), displacement.as_ref()],
+        );
+        let mut unobservable = anchored.map_or_else(Vec::new, |a| a.unobservable.clone());
+        unobservable.extend(unprotected(&report.displacement));
+        unobservable.extend(CheckedLone::contradicted(&lone.displacement));
+        let mut rotation_unprotected = unprotected(&report.rotation);
+        rotation_unprotected.extend(CheckedLone::contradicted(&lone.rotation));
         Cleared {
-            rotation: part(&report.rotation),
-            rotation_unprotected: unprotected(&report.rotation),
-            displacement: part(&report.displacement),
+            rotation,
+            rotation_unprotected,
+            displacement,
             displacement_observability: Observability::from_unobservable(&unobservable),
             excluded: report.excluded.clone(),
+            lone,
         }
+    }
+
+    /// The directions that one plane alone faces, each checked by the filter's prediction
+    /// (`witnesses`), of the cleared `[rotation, displacement]`.
+    fn checked_lone_witnesses(
+        &self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        epoch: &OdometryEpoch,
+        excluded: &[usize],
+        [rotation, displacement]: [Option<&Solution>; 2],
+    ) -> CheckedLone {
+        let limits = self.monitor.config();
+        LoneWitnesses::of(
+            previous,
+            &epoch.matches,
+            excluded,
+            limits.lone_plane_min_extent_m,
+            self.odometer.config().building(previous.down),
+        )
+        .checked(
+            rotation,
+            displacement,
+            &epoch.prior,
+            current.t_ref - previous.t_ref,
+            self.monitor.thresholds(),
+            limits,
+        )
+    }
+
+    /// Holds the lone directions the filter just fused unchecked, and lets go of those it
+    /// fused checked (`witnesses::Provisional`). A restart forgets them with the state.
+    fn settle_provisional(&mut self, cleared: &Cleared, t_previous: f64) {
+        let to_navigation = self
+            .filter
+            .pose_at_or_after(t_previous)
+            .map_or(self.filter.state().q, |pose| pose.q);
+        let rotation = cleared
+            .rotation
+            .as_ref()
+            .map(|_| Observability::from_unobservable(&cleared.rotation_unprotected));
+        let displacement = cleared
+            .displacement
+            .as_ref()
+            .map(|_| cleared.displacement_observability);
+        self.provisional
+            .after_fusion(&cleared.lone, [rotation, displacement], &to_navigation);
+    }
+
+    /// A filter that lost its convergence restarted: what it held provisional went with the
+    /// state it restarted.
+    fn forget_provisional_after_restart(&mut self) {
+        let converged = self.filter.converged();
+        if self.filter_converged && !converged {
+            self.provisional.clear();
+        }
+        self.filter_converged = converged;
     }
 }
 

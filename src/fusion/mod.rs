@@ -14,6 +14,7 @@ mod confirmation;
 mod epoch;
 pub mod record;
 mod shared_noise;
+mod witnesses;
 
 pub(crate) use config::FusionConfig;
 pub use config::{FusionError, FusionSettings};
@@ -74,6 +75,12 @@ pub struct Fusion {
     /// Epochs back to the plane confirmation's baseline.
     recent: confirmation::RecentEpochs,
     integrity: Option<IntegrityStatus>,
+    /// Directions fused on the word of a lone plane nothing could check yet: until they are
+    /// checked the estimate is not converged.
+    provisional: witnesses::Provisional,
+    /// Whether the filter was converged at the last epoch: losing it is a restart, which
+    /// forgets the provisional directions with the state.
+    filter_converged: bool,
     propagated: u64,
     counters: FusionCounters,
 }
@@ -97,6 +104,8 @@ impl Fusion {
             current: EpochPlanes::default(),
             recent: confirmation::RecentEpochs::default(),
             integrity: None,
+            provisional: witnesses::Provisional::default(),
+            filter_converged: false,
             propagated: 0,
             counters: FusionCounters::default(),
         })
@@ -190,6 +199,7 @@ impl Fusion {
     pub fn estimate(&self) -> Estimate {
         let mut estimate = self.filter.estimate();
         estimate.integrity = self.integrity.clone();
+        estimate.converged &= self.provisional.is_empty();
         estimate.degraded |= self.imu_stale || self.stale.iter().any(|&s| s) || self.scans_stale();
         estimate
     }

@@ -24,6 +24,19 @@ pub struct IntegrityConfig {
     /// Largest condition number of the whitened geometry matrix that is still tested; above it
     /// the epoch is `UnderDetermined` instead of inverting a near-singular geometry.
     pub max_condition_number: f64,
+    /// A direction that one plane alone faces cannot be tested against the other planes, only
+    /// against the filter's prediction of the epoch's relative pose. It is fused only while
+    /// that prediction would detect the plane moving this fast along it (m/s: its minimum
+    /// detectable bias over the epoch interval): after the filter has dead-reckoned along the
+    /// direction, a person walking square on to the platform would otherwise tell it that
+    /// direction.
+    pub lone_plane_detect_mps: f64,
+    /// As `lone_plane_detect_mps`, for a plane turning about a rotation direction, mrad/s.
+    pub lone_plane_detect_mradps: f64,
+    /// A lone plane with a line this long (m) is fused without that check: wider than a door,
+    /// a person or a carried board, it is taken for a wall. So is a level one in a building
+    /// (`[odometry] building_max_tilt_deg`).
+    pub lone_plane_min_extent_m: f64,
 }
 
 impl Default for IntegrityConfig {
@@ -35,6 +48,9 @@ impl Default for IntegrityConfig {
             min_planes_displacement: MIN_PLANES_DISPLACEMENT,
             min_planes_rotation: MIN_PLANES_ROTATION,
             max_condition_number: 1e4,
+            lone_plane_detect_mps: 0.3,
+            lone_plane_detect_mradps: 10.0,
+            lone_plane_min_extent_m: 1.5,
         }
     }
 }
@@ -92,6 +108,18 @@ impl IntegrityConfig {
             self.max_condition_number,
             "must be a finite number above 1: use e.g. 1e4",
         );
+        for (key, value) in [
+            ("lone_plane_detect_mps", self.lone_plane_detect_mps),
+            ("lone_plane_detect_mradps", self.lone_plane_detect_mradps),
+            ("lone_plane_min_extent_m", self.lone_plane_min_extent_m),
+        ] {
+            integrity.check(
+                value >= 0.0,
+                key,
+                value,
+                "must be 0 or more: use e.g. 0.3 m/s, 10 mrad/s or 1.5 m",
+            );
+        }
     }
 }
 

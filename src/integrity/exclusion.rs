@@ -102,6 +102,15 @@ impl IntegrityMonitor {
         })
     }
 
+    pub(crate) fn config(&self) -> &IntegrityConfig {
+        &self.config
+    }
+
+    /// The thresholds of a test checked on its own, with the whole false-alarm budget.
+    pub(crate) fn thresholds(&self) -> &Thresholds {
+        &self.alone
+    }
+
     /// Test one system with the whole false-alarm budget, without excluding anything.
     pub fn test(&self, kind: SolveKind, system: &LinearSystem) -> Result<SolveTest, Untestable> {
         self.test_with(&self.alone, kind, system)

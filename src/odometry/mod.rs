@@ -26,7 +26,7 @@ use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
-use planes::{Plane, PlaneExtractor, PlaneParameters, ScanLines};
+use planes::{Building, ParallelLines, Plane, PlaneExtractor, PlaneParameters, ScanLines};
 use rotation::{solve_rotation, RotationParameters};
 use serde::{Deserialize, Serialize};
 
@@ -62,6 +62,13 @@ pub struct OdometryConfig {
     /// planes are parallel by construction (e.g. two scanners pitched about the same axis facing
     /// a wall square on). Crossing pairs are still preferred when lines compete.
     pub accept_parallel_lines: bool,
+    /// A building's floors are level and its walls plumb within this, degrees, judged by the
+    /// filter's attitude. With `accept_parallel_lines`, a plane from parallel lines is kept only
+    /// if it is one or the other: its lines cannot show that they lie on one surface, and the
+    /// fictitious planes they make in a building join a wall line to a floor or ceiling line,
+    /// so they lean between the two. And a level plane may be the only one facing a direction
+    /// (`[integrity] lone_plane_*`): floors do not walk. 90 says the scene is not a building.
+    pub building_max_tilt_deg: f64,
     /// Planes whose normal sigma exceeds this, degrees, are dropped: they add little and their
     /// error is no longer linear in the noise (predicted sigmas turn optimistic).
     pub max_sigma_normal_deg: f64,
@@ -95,6 +102,7 @@ impl Default for OdometryConfig {
             coplanarity_gate_sigmas: 5.0,
             require_third_line: false,
             accept_parallel_lines: false,
+            building_max_tilt_deg: 3.0,
             max_sigma_normal_deg: 0.5,
             match_gate_chi2: 30.66,
             match_normal_gate_chi2: 13.82,
@@ -161,6 +169,12 @@ impl OdometryConfig {
                 positive,
             ),
             (
+                "building_max_tilt_deg",
+                self.building_max_tilt_deg,
+                self.building_max_tilt_deg > 0.0 && self.building_max_tilt_deg <= 90.0,
+                "set it above 0 and at most 90 degrees (90: the scene is not a building)",
+            ),
+            (
                 "max_sigma_normal_deg",
                 self.max_sigma_normal_deg,
                 self.max_sigma_normal_deg > 0.0,
@@ -213,12 +227,27 @@ impl OdometryConfig {
         }
     }
 
-    pub(crate) fn plane_parameters(&self) -> PlaneParameters {
+    /// The building's vertical in body axes, if the scene is a building and the filter knows
+    /// its attitude (`down`, the downward vertical).
+    pub(crate) fn building(&self, down: Option<Vector3<f64>>) -> Option<Building> {
+        let max_tilt_rad = self.building_max_tilt_deg.to_radians();
+        down.filter(|_| self.building_max_tilt_deg < 90.0)
+            .map(|down| Building { down, max_tilt_rad })
+    }
+
+    /// Plane-extraction parameters, given the downward vertical in body axes when the filter
+    /// knows it.
+    pub(crate) fn plane_parameters(&self, down: Option<Vector3<f64>>) -> PlaneParameters {
+        let parallel = match self.building(down) {
+            _ if self.accept_parallel_lines => ParallelLines::Accepted,
+            Some(building) => ParallelLines::LevelOrPlumb(building),
+            None => ParallelLines::Refused,
+        };
         PlaneParameters {
             min_separation_m: self.min_line_separation_m,
             coplanarity_gate_sigmas: self.coplanarity_gate_sigmas,
             require_third_line: self.require_third_line,
-            accept_parallel_lines: self.accept_parallel_lines,
+            parallel,
             max_sigma_normal_rad: self.max_sigma_normal_deg.to_radians(),
         }
     }
@@ -275,6 +304,8 @@ pub struct EpochPlanes {
     /// Candidates `admit` refused whose lines were still free: left out for want of
     /// confirmation, their lines given to other pairs.
     pub refused: usize,
+    /// The downward vertical in these body axes, when the filter knew its attitude.
+    pub down: Option<Vector3<f64>>,
 }
 
 /// The outcome of one epoch pair: matches and both solves, re-solvable with exclusions.
@@ -380,20 +411,24 @@ impl Odometer {
         pose_at: PoseAt<'_>,
         out: &mut EpochPlanes,
     ) {
-        self.extract_admitted_into(scans, t_ref, pose_at, &mut |_| true, out);
+        self.extract_admitted_into(scans, t_ref, pose_at, None, &mut |_| true, out);
     }
 
     /// As `extract_into`, keeping only the planes `admit` accepts: a refused candidate does
-    /// not take its lines, which stay free for the next pair.
+    /// not take its lines, which stay free for the next pair. `down`, the downward vertical in
+    /// body axes at `t_ref` when the filter knows it, lets a building's level and plumb planes
+    /// from parallel lines in (`building_max_tilt_deg`).
     pub(crate) fn extract_admitted_into(
         &mut self,
         scans: [&Scan; 2],
         t_ref: f64,
         pose_at: PoseAt<'_>,
+        down: Option<Vector3<f64>>,
         admit: &mut dyn FnMut(&Plane) -> bool,
         out: &mut EpochPlanes,
     ) {
         out.t_ref = t_ref;
+        out.down = down;
         for (k, scan) in scans.into_iter().enumerate() {
             let setup = &self.scanners[k];
             out.dropped[k] = self.deskewers[k].deskew(
@@ -417,7 +452,7 @@ impl Odometer {
         });
         out.refused = self.planes.extract(
             scan_lines,
-            &self.config.plane_parameters(),
+            &self.config.plane_parameters(down),
             admit,
             &mut out.planes,
             &mut out.unscreened,

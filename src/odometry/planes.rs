@@ -21,12 +21,50 @@ pub(crate) struct PlaneParameters {
     pub coplanarity_gate_sigmas: f64,
     /// Keep only planes that a third line confirms (guards against fictitious planes, Fig. 3).
     pub require_third_line: bool,
-    /// Also pair lines too close to parallel for the coplanarity test to mean anything (the
-    /// paper does); such planes are tried last, as they may be fictitious.
-    pub accept_parallel_lines: bool,
+    /// Whether to pair lines too close to parallel (or meeting too far away) for the
+    /// coplanarity test to mean anything; such planes are tried last, as they may be fictitious.
+    pub parallel: ParallelLines,
     /// Planes whose normal is known worse than this (rad) are dropped: they add little and their
     /// error is no longer linear in the noise.
     pub max_sigma_normal_rad: f64,
+}
+
+/// What becomes of a plane whose two lines are parallel: their coplanarity proves nothing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum ParallelLines {
+    Refused,
+    /// As the paper does.
+    Accepted,
+    /// Only if level or plumb: a building's surfaces are, and a fictitious plane joining a wall
+    /// line to a floor line is not.
+    LevelOrPlumb(Building),
+}
+
+impl ParallelLines {
+    fn admits(&self, normal: &Vector3<f64>) -> bool {
+        match self {
+            Self::Refused => false,
+            Self::Accepted => true,
+            Self::LevelOrPlumb(building) => building.is_level(normal) || building.is_plumb(normal),
+        }
+    }
+}
+
+/// A building's vertical (`down`, body axes) and how far its floors and walls may tilt.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Building {
+    pub down: Vector3<f64>,
+    pub max_tilt_rad: f64,
+}
+
+impl Building {
+    pub(crate) fn is_level(&self, normal: &Vector3<f64>) -> bool {
+        normal.dot(&self.down).abs() >= self.max_tilt_rad.cos()
+    }
+
+    fn is_plumb(&self, normal: &Vector3<f64>) -> bool {
+        normal.dot(&self.down).abs() <= self.max_tilt_rad.sin()
+    }
 }
 
 /// A line of scanner `scanner`: index `segment` into that scanner's lines.
@@ -54,6 +92,9 @@ pub struct Plane {
     pub crossing: bool,
     /// Whether a third line lies in the plane within its noise.
     pub confirmed: bool,
+    /// Length of its longer line, m: a lower bound on the surface's extent. A door, a person or
+    /// a carried board is narrower than a wall.
+    pub extent_m: f64,
 }
 
 /// The lines of one scan with the beams they index and the scanner's ranging sigma.
@@ -211,8 +252,13 @@ fn plane_from_pair(
     if s2.direction.dot(&normal).abs() > tilt_gate {
         return None;
     }
-    let crossing = s1.direction.cross(&s2.direction).norm() > tilt_gate;
-    if !crossing && !parameters.accept_parallel_lines {
+    // Two lines, one in each scan plane, are coplanar exactly when they meet on the line the
+    // scan planes share; lines both parallel to it are coplanar whatever surfaces they lie on
+    // (a wall ahead and the floor: Fig. 3's fictitious plane), and lines close to that are
+    // coplanar within their noise and meet tens of metres away. Only a pair crossing at a
+    // clear angle shows by its coplanarity that it lies on one surface.
+    let crossing = s1.direction.cross(&s2.direction).norm() > tilt_gate.max(MIN_CROSSING_SINE);
+    if !crossing && !parameters.parallel.admits(&normal) {
         return None;
     }
     Some(Plane {
@@ -223,11 +269,13 @@ fn plane_from_pair(
         lines: pair,
         crossing,
         confirmed: false,
+        extent_m: s1.length.max(s2.length),
     })
 }
 
-/// Lines crossing at less than this (sine of the angle) are too close to parallel to define a
-/// plane by their directions alone.
+/// Lines crossing at less than this (sine of the angle, 10 deg) are too close to parallel to
+/// define a plane by their directions alone, or to show by their coplanarity that they lie on
+/// one surface.
 const MIN_CROSSING_SINE: f64 = 0.17;
 
 /// Eq 8 needs the second line's centre off the first line. Two co-located scanners pitched
@@ -272,6 +320,7 @@ fn plane_from_crossing_lines(
         lines: pair,
         crossing: true,
         confirmed: false,
+        extent_m: s1.length.max(s2.length),
     };
     [line1, line2]
         .iter()

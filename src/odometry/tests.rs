@@ -137,6 +137,7 @@ fn bare_plane(id: usize, normal: Vector3<f64>, rho: f64) -> Plane {
         ],
         crossing: true,
         confirmed: false,
+        extent_m: 1.0,
     }
 }
 

@@ -1,0 +1,368 @@
+//! Directions of an epoch's solves that a single plane alone observes, and how the filter's
+//! prediction stands in as their second witness.
+//!
+//! The integrity test sees a moving plane only where another plane observes the same
+//! direction. Where one plane alone faces a direction, its fault moves the estimate unseen, and
+//! the test marks that direction unprotected, so it is not fused. But an under-determined
+//! displacement is solved with an anchor along each unobservable direction (`anchor`), and a
+//! lone plane a few degrees off square to an anchor shares a sliver of the anchor's direction:
+//! the test then counts the plane as redundant, with a minimum detectable bias of metres. In an
+//! ordinary room a person walking square on to the platform is such a plane: the only one
+//! facing the motion along the room, it told the filter that direction to a centimetre while it
+//! walked. So the directions are judged by the planes' geometry alone, as the solves judge what
+//! they observe, and a lone plane is taken on trust only if it is a static surface by its size
+//! or, in a building, by being level.
+//!
+//! Any other lone plane is checked by the filter's prediction of the relative pose, which is
+//! the IMU's (`Check`): fused every epoch, it knows the along-track motion of a hallway to a
+//! centimetre, and a lone cabinet that moved would stand out. A direction the prediction
+//! contradicts is not fused. One the prediction cannot check (it has dead-reckoned along it, or
+//! the filter has just started in motion and has nothing else to learn the velocity from) is
+//! fused, but held `Provisional`: the estimate is not to be used until a later epoch checks
+//! that direction against the prediction it now carries, or two planes observe it.
+
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::filter::Observability;
+use crate::integrity::{IntegrityConfig, Thresholds};
+use crate::least_squares::{Solution, PARALLEL_TOLERANCE};
+use crate::odometry::matching::PlaneMatch;
+use crate::odometry::planes::Building;
+use crate::odometry::{EpochPlanes, RelativePose};
+
+/// Directions (body i) that a single used plane alone observes, for the rotation and for the
+/// displacement.
+#[derive(Debug)]
+pub(super) struct LoneWitnesses {
+    pub rotation: Vec<Vector3<f64>>,
+    pub displacement: Vec<Vector3<f64>>,
+}
+
+impl LoneWitnesses {
+    /// Of the matches not in `excluded` (indices past `matches` are anchors: not planes),
+    /// leaving out the directions of lone planes taken for static: those with a line of
+    /// `min_extent_m` or more, and level ones in a `building`.
+    pub(super) fn of(
+        previous: &EpochPlanes,
+        matches: &[PlaneMatch],
+        excluded: &[usize],
+        min_extent_m: f64,
+        building: Option<Building>,
+    ) -> Self {
+        let witnesses: Vec<Witness> = matches
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !excluded.contains(k))
+            .map(|(_, m)| {
+                let plane = &previous.planes[m.previous];
+                let level = building.is_some_and(|b| b.is_level(&plane.normal));
+                Witness {
+                    normal: plane.normal,
+                    static_surface: level || plane.extent_m >= min_extent_m,
+                }
+            })
+            .collect();
+        Self {
+            rotation: lone(&witnesses, |n| Matrix3::identity() - n * n.transpose()),
+            displacement: lone(&witnesses, |n| n * n.transpose()),
+        }
+    }
+}
+
+/// What the filter's prediction makes of a lone direction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Check {
+    /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
+    Confirmed,
+    /// It disagrees beyond the test's threshold: the plane moved, or the filter is off.
+    Contradicted,
+    /// It is too uncertain to tell.
+    Unchecked,
+}
+
+/// The lone directions (body i) of an epoch, each with the prediction's check.
+#[derive(Debug, Default)]
+pub(super) struct CheckedLone {
+    pub rotation: Vec<(Vector3<f64>, Check)>,
+    pub displacement: Vec<(Vector3<f64>, Check)>,
+}
+
+impl LoneWitnesses {
+    /// Checks the lone directions of the solves that integrity cleared against the filter's
+    /// prediction `prior` over `interval_s` (a direction of a solve not cleared is not fused
+    /// anyway).
+    pub(super) fn checked(
+        self,
+        rotation: Option<&Solution>,
+        displacement: Option<&Solution>,
+        prior: &RelativePose,
+        interval_s: f64,
+        thresholds: &Thresholds,
+        limits: &IntegrityConfig,
+    ) -> CheckedLone {
+        let rotation = rotation.map_or_else(Vec::new, |solution| {
+            // Both are left perturbations in body-i axes.
+            let difference = (UnitQuaternion::from_scaled_axis(solution.x)
+                * prior.rotation.inverse())
+            .scaled_axis();
+            let witness = PriorWitness {
+                difference,
+                covariance: solution.covariance + prior.rotation_covariance,
+                max_mdb: limits.lone_plane_detect_mradps * 1e-3 * interval_s,
+            };
+            witness.check_all(self.rotation, thresholds)
+        });
+        let displacement = displacement.map_or_else(Vec::new, |solution| {
+            let witness = PriorWitness {
+                difference: solution.x - prior.translation,
+                covariance: solution.covariance + prior.translation_covariance,
+                max_mdb: limits.lone_plane_detect_mps * interval_s,
+            };
+            witness.check_all(self.displacement, thresholds)
+        });
+        CheckedLone {
+            rotation,
+            displacement,
+        }
+    }
+}
+
+impl CheckedLone {
+    /// The directions not to fuse: those the prediction contradicts.
+    pub(super) fn contradicted(
+        directions: &[(Vector3<f64>, Check)],
+    ) -> impl Iterator<Item = Vector3<f64>> + '_ {
+        directions
+            .iter()
+            .filter(|(_, check)| *check == Check::Contradicted)
+            .map(|(u, _)| *u)
+    }
+}
+
+/// A solve's difference from the filter's prediction, with the covariance of that difference.
+struct PriorWitness {
+    difference: Vector3<f64>,
+    covariance: Matrix3<f64>,
+    max_mdb: f64,
+}
+
+impl PriorWitness {
+    fn check_all(
+        &self,
+        directions: Vec<Vector3<f64>>,
+        thresholds: &Thresholds,
+    ) -> Vec<(Vector3<f64>, Check)> {
+        directions
+            .into_iter()
+            .map(|u| (u, self.check(&u, thresholds)))
+            .collect()
+    }
+
+    fn check(&self, u: &Vector3<f64>, thresholds: &Thresholds) -> Check {
+        let gamma = thresholds.sole();
+        let sigma = u.dot(&(self.covariance * u)).sqrt();
+        if u.dot(&self.difference).abs() > gamma * sigma {
+            Check::Contradicted
+        } else if (gamma + thresholds.missed_detection_quantile) * sigma <= self.max_mdb {
+            Check::Confirmed
+        } else {
+            Check::Unchecked
+        }
+    }
+}
+
+/// Directions (navigation axes) fused on the word of a lone plane the prediction could not
+/// check, for the rotation and the displacement.
+#[derive(Debug, Default)]
+pub(super) struct Provisional {
+    rotation: Vec<Vector3<f64>>,
+    displacement: Vec<Vector3<f64>>,
+}
+
+/// Directions closer than this (cosine, 10 deg) count as one.
+const SAME_DIRECTION: f64 = 0.985;
+
+impl Provisional {
+    /// Whether nothing fused waits for a check.
+    pub(super) fn is_empty(&self) -> bool {
+        self.rotation.is_empty() && self.displacement.is_empty()
+    }
+
+    pub(super) fn clear(&mut self) {
+        self.rotation.clear();
+        self.displacement.clear();
+    }
+
+    /// After an epoch whose relative pose the filter fused: `checked` its lone directions,
+    /// `fused` the body-i directions of each of `[rotation, displacement]` that went in (`None`
+    /// for a solve that did not), `to_navigation` turns body-i axes into navigation axes.
+    pub(super) fn after_fusion(
+        &mut self,
+        checked: &CheckedLone,
+        [rotation, displacement]: [Option<Observability>; 2],
+        to_navigation: &UnitQuaternion<f64>,
+    ) {
+        settle(
+            &mut self.rotation,
+            &checked.rotation,
+            rotation,
+            to_navigation,
+        );
+        settle(
+            &mut self.displacement,
+            &checked.displacement,
+            displacement,
+            to_navigation,
+        );
+    }
+}
+
+/// Adds the unchecked lone directions that went in, and drops the held directions that went in
+/// checked: by the prediction, or by two planes.
+fn settle(
+    held: &mut Vec<Vector3<f64>>,
+    checked: &[(Vector3<f64>, Check)],
+    fused: Option<Observability>,
+    to_navigation: &UnitQuaternion<f64>,
+) {
+    let went_in = |u: &Vector3<f64>| fused.is_some_and(|o| o.contains(u, SAME_DIRECTION));
+    let unchecked: Vec<Vector3<f64>> = checked
+        .iter()
+        .filter(|(_, check)| *check != Check::Confirmed)
+        .map(|(u, _)| *u)
+        .collect();
+    held.retain(|v| {
+        let body = to_navigation.inverse_transform_vector(v);
+        let still_unchecked = unchecked
+            .iter()
+            .any(|u| u.dot(&body).abs() > SAME_DIRECTION);
+        still_unchecked || !went_in(&body)
+    });
+    for (u, check) in checked {
+        let navigation = to_navigation * u;
+        let known = held
+            .iter()
+            .any(|v| v.dot(&navigation).abs() > SAME_DIRECTION);
+        if *check == Check::Unchecked && went_in(u) && !known {
+            held.push(navigation);
+        }
+    }
+}
+
+/// A used plane's normal (body i) and whether it is taken for a static surface.
+struct Witness {
+    normal: Vector3<f64>,
+    static_surface: bool,
+}
+
+/// For each plane not taken for static, the directions the others leave unobserved that it
+/// observes, judged against the whole geometry (`sum` of `geometry` over the normals) as the
+/// solves judge their own.
+fn lone(
+    witnesses: &[Witness],
+    geometry: impl Fn(&Vector3<f64>) -> Matrix3<f64>,
+) -> Vec<Vector3<f64>> {
+    let each: Vec<Matrix3<f64>> = witnesses.iter().map(|w| geometry(&w.normal)).collect();
+    let all: Matrix3<f64> = each.iter().sum();
+    let floor = PARALLEL_TOLERANCE * all.symmetric_eigen().eigenvalues.amax();
+    let mut directions = Vec::new();
+    for (own, _) in each
+        .iter()
+        .zip(witnesses)
+        .filter(|(_, w)| !w.static_surface)
+    {
+        let others = (all - own).symmetric_eigen();
+        let unseen: Matrix3<f64> = (0..3)
+            .filter(|&i| others.eigenvalues[i] <= floor)
+            .map(|i| {
+                let u = others.eigenvectors.column(i);
+                u * u.transpose()
+            })
+            .sum();
+        // What the plane itself sees of the directions the others leave unseen.
+        let seen_alone = (unseen * own * unseen).symmetric_eigen();
+        directions.extend(
+            (0..3)
+                .filter(|&i| seen_alone.eigenvalues[i] > floor)
+                .map(|i| seen_alone.eigenvectors.column(i).into_owned()),
+        );
+    }
+    directions
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unknown(normals: &[Vector3<f64>]) -> Vec<Witness> {
+        normals
+            .iter()
+            .map(|&normal| Witness {
+                normal,
+                static_surface: false,
+            })
+            .collect()
+    }
+
+    fn displacement(n: &Vector3<f64>) -> Matrix3<f64> {
+        n * n.transpose()
+    }
+
+    fn rotation(n: &Vector3<f64>) -> Matrix3<f64> {
+        Matrix3::identity() - n * n.transpose()
+    }
+
+    #[test]
+    fn a_plane_alone_facing_a_direction_leaves_it_unprotected() {
+        let person = Vector3::new(0.99, 0.0, -0.16).normalize();
+        let mut normals = vec![Vector3::y(), -Vector3::y(), Vector3::y(), person];
+        let lone_displacement = lone(&unknown(&normals), displacement);
+        assert_eq!(lone_displacement.len(), 1, "{lone_displacement:?}");
+        assert!(lone_displacement[0].dot(&person).abs() > 0.99);
+        // A wall behind the person, facing the same way, makes the person testable.
+        normals.push(person);
+        assert!(lone(&unknown(&normals), displacement).is_empty());
+    }
+
+    #[test]
+    fn a_lone_wall_is_trusted_and_a_lone_person_is_not() {
+        let mut witnesses = unknown(&[Vector3::y(), -Vector3::y(), Vector3::x()]);
+        witnesses[2].static_surface = true;
+        assert!(lone(&witnesses, displacement).is_empty());
+    }
+
+    #[test]
+    fn walls_of_one_direction_leave_the_rotation_about_it_to_nobody() {
+        // Rotation about y is unobserved by all, so no plane is its lone witness; rotation
+        // about x and z is seen by every wall.
+        let walls = [Vector3::y(), -Vector3::y()];
+        assert!(lone(&unknown(&walls), rotation).is_empty());
+        let with_floor = [Vector3::y(), -Vector3::y(), Vector3::z()];
+        let lone_rotation = lone(&unknown(&with_floor), rotation);
+        assert_eq!(lone_rotation.len(), 1);
+        assert!(lone_rotation[0].y.abs() > 0.99, "{lone_rotation:?}");
+    }
+
+    #[test]
+    fn the_prediction_checks_a_lone_direction_only_while_it_knows_it() {
+        let thresholds = Thresholds::new(1e-3, 1e-3);
+        let tight = PriorWitness {
+            difference: Vector3::new(0.01, 0.0, 0.0),
+            covariance: Matrix3::identity() * 0.01f64.powi(2),
+            max_mdb: 0.1,
+        };
+        assert_eq!(tight.check(&Vector3::x(), &thresholds), Check::Confirmed);
+        // The same plane after the filter dead-reckoned along x: nothing checks it.
+        let loose = PriorWitness {
+            covariance: Matrix3::identity() * 0.2f64.powi(2),
+            ..tight
+        };
+        assert_eq!(loose.check(&Vector3::x(), &thresholds), Check::Unchecked);
+        // A tight prediction that disagrees: the plane moved.
+        let moved = PriorWitness {
+            difference: Vector3::new(0.1, 0.0, 0.0),
+            ..tight
+        };
+        assert_eq!(moved.check(&Vector3::x(), &thresholds), Check::Contradicted);
+    }
+}
