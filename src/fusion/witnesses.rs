@@ -40,8 +40,8 @@ pub(super) struct LoneWitnesses {
 
 impl LoneWitnesses {
     /// Of the matches not in `excluded` (indices past `matches` are anchors: not planes),
-    /// leaving out the directions of lone planes taken for static: those with a line of
-    /// `min_extent_m` or more, and level ones in a `building`.
+    /// leaving out the directions of lone planes taken for static: crossing ones with a line of
+    /// `min_extent_m` or more, and level crossing ones in a `building`.
     pub(super) fn of(
         previous: &EpochPlanes,
         matches: &[PlaneMatch],
@@ -56,9 +56,12 @@ impl LoneWitnesses {
             .map(|(_, m)| {
                 let plane = &previous.planes[m.previous];
                 let level = building.is_some_and(|b| b.is_level(&plane.normal));
+                // Only crossing lines show they lie on one surface: two parallel ones may join
+                // a wall line to a floor line, long and nearly level as a floor.
+                let static_surface = plane.crossing && (level || plane.extent_m >= min_extent_m);
                 Witness {
                     normal: plane.normal,
-                    static_surface: level || plane.extent_m >= min_extent_m,
+                    static_surface,
                 }
             })
             .collect();
