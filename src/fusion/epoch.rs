@@ -213,6 +213,7 @@ impl Fusion {
         if record.outcome == EpochOutcome::Fused {
             self.settle_provisional(&cleared, previous.t_ref);
         }
+        record.provisional_directions = self.provisional.len();
         noise_maps
     }
 
@@ -434,6 +435,7 @@ fn describe_solve(
     record.unobservable_displacement = anchored
         .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
         .unwrap_or_default();
+    record.lone_directions = cleared.lone.described();
     record.status = Some(report.status.clone());
     record.integrity = Some(report);
 }
@@ -473,6 +475,8 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         excluded_planes: Vec::new(),
         unconfirmed_planes: 0,
         unobservable_displacement: Vec::new(),
+        lone_directions: Vec::new(),
+        provisional_directions: 0,
         status: None,
         integrity: None,
         rotation: None,

@@ -6,9 +6,11 @@ use serde::Serialize;
 
 use crate::estimate::IntegrityStatus;
 use crate::filter::UpdateReport;
-use crate::integrity::EpochReport;
+use crate::integrity::{EpochReport, SolveKind};
 use crate::odometry::deskew::DroppedReadings;
 use crate::odometry::planes::Plane;
+
+pub use super::witnesses::Check;
 
 /// How an epoch ended.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -66,6 +68,14 @@ impl From<&UpdateReport> for UpdateSummary {
     }
 }
 
+/// A direction of one solve that a single plane alone faced.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct LoneDirection {
+    pub solve: SolveKind,
+    pub direction: [f64; 3],
+    pub check: Check,
+}
+
 /// A plane as `normal . p = rho` in its epoch's body axes.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct PlaneGeometry {
@@ -115,6 +125,12 @@ pub struct EpochRecord {
     /// Directions (body i) no matched plane constrained: anchored to the filter's prior for
     /// the solve and left out of the fused displacement.
     pub unobservable_displacement: Vec<[f64; 3]>,
+    /// Directions (body i) one plane alone faced, not taken for a wall or a floor, with what the
+    /// filter's prediction made of each (`fusion/witnesses.rs`).
+    pub lone_directions: Vec<LoneDirection>,
+    /// Directions fused on a lone plane's word that still wait for a check after this epoch:
+    /// while any does, the estimate is not converged.
+    pub provisional_directions: usize,
     /// Verdict of the integrity monitor, when the epoch was solved.
     pub status: Option<IntegrityStatus>,
     /// Test statistics, thresholds, minimum detectable biases and protection levels.

@@ -24,7 +24,10 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::filter::Observability;
-use crate::integrity::{IntegrityConfig, Thresholds};
+use crate::integrity::{IntegrityConfig, SolveKind, Thresholds};
+use serde::Serialize;
+
+use super::record::LoneDirection;
 use crate::least_squares::{Solution, PARALLEL_TOLERANCE};
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::Building;
@@ -73,8 +76,9 @@ impl LoneWitnesses {
 }
 
 /// What the filter's prediction makes of a lone direction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Check {
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Check {
     /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
     Confirmed,
     /// It disagrees beyond the test's threshold: the plane moved, or the filter is off.
@@ -131,6 +135,23 @@ impl LoneWitnesses {
 }
 
 impl CheckedLone {
+    /// For epochs.jsonl.
+    pub(super) fn described(&self) -> Vec<LoneDirection> {
+        let of = |solve: SolveKind, directions: &[(Vector3<f64>, Check)]| {
+            directions
+                .iter()
+                .map(move |&(u, check)| LoneDirection {
+                    solve,
+                    direction: u.into(),
+                    check,
+                })
+                .collect::<Vec<_>>()
+        };
+        let mut described = of(SolveKind::Rotation, &self.rotation);
+        described.extend(of(SolveKind::Displacement, &self.displacement));
+        described
+    }
+
     /// The directions not to fuse: those the prediction contradicts.
     pub(super) fn contradicted(
         directions: &[(Vector3<f64>, Check)],
@@ -188,7 +209,12 @@ const SAME_DIRECTION: f64 = 0.985;
 impl Provisional {
     /// Whether nothing fused waits for a check.
     pub(super) fn is_empty(&self) -> bool {
-        self.rotation.is_empty() && self.displacement.is_empty()
+        self.len() == 0
+    }
+
+    /// How many directions wait for a check.
+    pub(super) fn len(&self) -> usize {
+        self.rotation.len() + self.displacement.len()
     }
 
     pub(super) fn clear(&mut self) {
