@@ -22,12 +22,11 @@
 //! that direction against the prediction it now carries, or two planes observe it.
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
-
-use crate::filter::Observability;
-use crate::integrity::{IntegrityConfig, SolveKind, Thresholds};
 use serde::Serialize;
 
 use super::record::LoneDirection;
+use crate::filter::Observability;
+use crate::integrity::{IntegrityConfig, SolveKind, Thresholds};
 use crate::least_squares::{Solution, PARALLEL_TOLERANCE};
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::Building;
@@ -69,32 +68,11 @@ impl LoneWitnesses {
             })
             .collect();
         Self {
-            rotation: lone(&witnesses, |n| Matrix3::identity() - n * n.transpose()),
-            displacement: lone(&witnesses, |n| n * n.transpose()),
+            rotation: lone(&witnesses, rotation_geometry),
+            displacement: lone(&witnesses, displacement_geometry),
         }
     }
-}
 
-/// What the filter's prediction makes of a lone direction.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Check {
-    /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
-    Confirmed,
-    /// It disagrees beyond the test's threshold: the plane moved, or the filter is off.
-    Contradicted,
-    /// It is too uncertain to tell.
-    Unchecked,
-}
-
-/// The lone directions (body i) of an epoch, each with the prediction's check.
-#[derive(Debug, Default)]
-pub(super) struct CheckedLone {
-    pub rotation: Vec<(Vector3<f64>, Check)>,
-    pub displacement: Vec<(Vector3<f64>, Check)>,
-}
-
-impl LoneWitnesses {
     /// Checks the lone directions of the solves that integrity cleared against the filter's
     /// prediction `prior` over `interval_s` (a direction of a solve not cleared is not fused
     /// anyway).
@@ -132,6 +110,25 @@ impl LoneWitnesses {
             displacement,
         }
     }
+}
+
+/// What the filter's prediction makes of a lone direction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Check {
+    /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
+    Confirmed,
+    /// It disagrees beyond the test's threshold: the plane moved, or the filter is off.
+    Contradicted,
+    /// It is too uncertain to tell.
+    Unchecked,
+}
+
+/// The lone directions (body i) of an epoch, each with the prediction's check.
+#[derive(Debug, Default)]
+pub(super) struct CheckedLone {
+    pub rotation: Vec<(Vector3<f64>, Check)>,
+    pub displacement: Vec<(Vector3<f64>, Check)>,
 }
 
 impl CheckedLone {
@@ -278,6 +275,16 @@ fn settle(
     }
 }
 
+/// What a plane with normal `n` tells of a rotation: the turn about any axis but `n`.
+fn rotation_geometry(n: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::identity() - n * n.transpose()
+}
+
+/// What a plane with normal `n` tells of a displacement: its component along `n`.
+fn displacement_geometry(n: &Vector3<f64>) -> Matrix3<f64> {
+    n * n.transpose()
+}
+
 /// A used plane's normal (body i) and whether it is taken for a static surface.
 struct Witness {
     normal: Vector3<f64>,
@@ -291,6 +298,9 @@ fn lone(
     witnesses: &[Witness],
     geometry: impl Fn(&Vector3<f64>) -> Matrix3<f64>,
 ) -> Vec<Vector3<f64>> {
+    if witnesses.iter().all(|w| w.static_surface) {
+        return Vec::new();
+    }
     let each: Vec<Matrix3<f64>> = witnesses.iter().map(|w| geometry(&w.normal)).collect();
     let all: Matrix3<f64> = each.iter().sum();
     let floor = PARALLEL_TOLERANCE * all.symmetric_eigen().eigenvalues.amax();
@@ -333,31 +343,23 @@ mod tests {
             .collect()
     }
 
-    fn displacement(n: &Vector3<f64>) -> Matrix3<f64> {
-        n * n.transpose()
-    }
-
-    fn rotation(n: &Vector3<f64>) -> Matrix3<f64> {
-        Matrix3::identity() - n * n.transpose()
-    }
-
     #[test]
     fn a_plane_alone_facing_a_direction_leaves_it_unprotected() {
         let person = Vector3::new(0.99, 0.0, -0.16).normalize();
         let mut normals = vec![Vector3::y(), -Vector3::y(), Vector3::y(), person];
-        let lone_displacement = lone(&unknown(&normals), displacement);
+        let lone_displacement = lone(&unknown(&normals), displacement_geometry);
         assert_eq!(lone_displacement.len(), 1, "{lone_displacement:?}");
         assert!(lone_displacement[0].dot(&person).abs() > 0.99);
         // A wall behind the person, facing the same way, makes the person testable.
         normals.push(person);
-        assert!(lone(&unknown(&normals), displacement).is_empty());
+        assert!(lone(&unknown(&normals), displacement_geometry).is_empty());
     }
 
     #[test]
     fn a_lone_wall_is_trusted_and_a_lone_person_is_not() {
         let mut witnesses = unknown(&[Vector3::y(), -Vector3::y(), Vector3::x()]);
         witnesses[2].static_surface = true;
-        assert!(lone(&witnesses, displacement).is_empty());
+        assert!(lone(&witnesses, displacement_geometry).is_empty());
     }
 
     #[test]
@@ -365,9 +367,9 @@ mod tests {
         // Rotation about y is unobserved by all, so no plane is its lone witness; rotation
         // about x and z is seen by every wall.
         let walls = [Vector3::y(), -Vector3::y()];
-        assert!(lone(&unknown(&walls), rotation).is_empty());
+        assert!(lone(&unknown(&walls), rotation_geometry).is_empty());
         let with_floor = [Vector3::y(), -Vector3::y(), Vector3::z()];
-        let lone_rotation = lone(&unknown(&with_floor), rotation);
+        let lone_rotation = lone(&unknown(&with_floor), rotation_geometry);
         assert_eq!(lone_rotation.len(), 1);
         assert!(lone_rotation[0].y.abs() > 0.99, "{lone_rotation:?}");
     }
