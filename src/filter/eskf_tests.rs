@@ -908,3 +908,72 @@ fn a_correction_that_moves_the_position_a_lot_comes_with_a_reset() {
         Some(ResetReason::PositionStep { metres }) if metres > 0.1
     ));
 }
+
+/// One seeded walk down a bare corridor: the body pitched -10 deg walks along north at
+/// 0.3 m/s, and every second the odometry measures the rotation and the displacement but for
+/// the direction along the corridor (the walls and the floor leave it free). Initial errors,
+/// biases and noise as `monte_carlo_run`'s. Returns the along-corridor velocity error over its
+/// sigma at the end.
+fn corridor_run(config: &FilterConfig, seed: u64) -> f64 {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let rate = 100.0;
+    let trajectory = ConstantRotation {
+        q0: UnitQuaternion::from_euler_angles(0.0, -10f64.to_radians(), 0.0),
+        rate: Vector3::zeros(),
+        velocity: Vector3::new(0.3, 0.0, 0.0),
+    };
+    let mut normal = |sigma: f64| gaussian(&mut rng) * sigma;
+    let tilt = config.initial_sigma_tilt_deg.to_radians();
+    let truth0 = trajectory.truth(0.0);
+    let state = NominalState {
+        p: truth0.p,
+        v: truth0.v - normal(config.initial_sigma_velocity_mps),
+        q: truth0.q
+            * UnitQuaternion::from_scaled_axis(
+                normal(tilt).component_mul(&Vector3::new(1.0, 1.0, 0.0)),
+            ),
+        ..NominalState::at_rest(truth0.q, Vector3::zeros())
+    };
+    let mut samples = trajectory.imu_samples(0.0, 60.0, rate, false);
+    ImuErrors {
+        gyro_bias: normal(config.initial_sigma_gyro_bias),
+        accel_bias: normal(config.initial_sigma_accel_bias),
+        gyro_noise_density: config.gyro_noise_density,
+        accel_noise_density: config.accel_noise_density,
+    }
+    .corrupt(&mut samples, rate, &mut rng);
+    let along = truth0.q.inverse_transform_vector(&Vector3::x());
+    let mut filter = Eskf::with_initial_state(config.clone(), 0.0, state).unwrap();
+    let mut epoch_ref = None;
+    for (k, sample) in samples.iter().enumerate() {
+        filter.push_imu(sample);
+        if k % 100 == 0 {
+            let t = sample.time();
+            if let Some(t_ref) = epoch_ref {
+                let mut m = measured_relative_pose(&trajectory, t_ref, t, 2e-3, 2e-3, &mut rng);
+                if let Some(translation) = &mut m.translation {
+                    translation.observability = Observability::from_unobservable(&[along]);
+                }
+                filter.update_relative_pose(&m).unwrap();
+            }
+            epoch_ref = Some(filter.clone_pose().unwrap());
+        }
+    }
+    let error = filter.state().v.x - trajectory.truth(60.0).v.x;
+    error / filter.covariance()[(super::state::VEL, super::state::VEL)].sqrt()
+}
+
+#[test]
+fn a_corridor_leaves_the_velocity_along_it_honestly_uncertain() {
+    let runs = 25;
+    let normalised: Vec<f64> = (0..runs)
+        .map(|seed| corridor_run(&aligned(), seed))
+        .collect();
+    let total: f64 = normalised.iter().map(|z| z * z).sum();
+    eprintln!("{normalised:.2?} summed {total:.1}");
+    let [low, high] = [0.025, 0.975].map(|p| chi_square_quantile(p, runs as usize));
+    assert!(
+        total > low && total < high,
+        "summed {total} outside [{low}, {high}]"
+    );
+}

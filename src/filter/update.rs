@@ -64,6 +64,14 @@ impl Observability {
         projected.sqrt() >= cosine
     }
 
+    /// Projector onto the observable subspace.
+    pub(crate) fn projector(&self) -> Matrix3<f64> {
+        (0..self.rank).fold(Matrix3::zeros(), |sum, i| {
+            let d = self.basis.column(i);
+            sum + d * d.transpose()
+        })
+    }
+
     #[cfg(test)]
     pub(crate) fn observable_directions(&self) -> impl Iterator<Item = Vector3<f64>> + '_ {
         (0..self.rank).map(|i| self.basis.column(i).into())
