@@ -386,7 +386,7 @@ fn study_flight_started_in_motion_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study; fails today: one start of 20, in the board's approach, is first usable after 11.2 s (docs/autopilot.md)"]
+#[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_hover_started_in_motion_20_runs() {
     let trials = starts_in_motion("hallway-hover", 20, 400.0, 60.0);
     let (verdict, first) = study("hallway-hover started in motion, 20 runs", &trials);
