@@ -132,6 +132,19 @@ pub struct FilterConfig {
     /// uncertain, until it gets here; the default keeps what it moves the position between two
     /// 30 Hz messages below 0.2 m, which an autopilot would otherwise take for a jump.
     pub max_speed_mps: f64,
+    /// The platform's speed envelope, m/s: a prior on the velocity, N(0, sigma^2), fused every
+    /// `speed_prior_interval_s` along the directions whose velocity sigma exceeds it, and only
+    /// those. Where no surface observes the motion (a bare corridor's length, a room whose end
+    /// walls are out of reach) the IMU alone would let the velocity error grow without bound,
+    /// and the position error with its square; the prior holds the estimate to the speeds the
+    /// platform flies. A direction only the prior holds keeps a sigma of at least 0.7 times
+    /// it, so from `MIN_SPEED_PRIOR_SIGMA_MPS` up it stays above the 0.5 m/s at which ODOMETRY's
+    /// quality falls to 0: the autopilot never uses what the prior alone says. Set it to the
+    /// speed the platform keeps up for `speed_prior_interval_s` and more, or 0 to turn it off.
+    pub speed_prior_sigma_mps: f64,
+    /// How often the speed prior is fused, s: about the time over which the platform's
+    /// velocity changes by its envelope (a hover's drift, a walk's turn).
+    pub speed_prior_interval_s: f64,
     /// Fused relative poses over which the divergence guard sums the NIS.
     pub divergence_window: u32,
     /// Relative poses refused by the gate in a row that count as divergence.
@@ -143,6 +156,10 @@ pub struct FilterConfig {
     /// position and heading, since the attitude and velocity could have become anything.
     pub max_coast_s: f64,
 }
+
+/// The smallest speed prior that cannot by itself make a velocity look usable
+/// (`speed_prior_sigma_mps`).
+const MIN_SPEED_PRIOR_SIGMA_MPS: f64 = 0.75;
 
 impl Default for FilterConfig {
     fn default() -> Self {
@@ -184,6 +201,8 @@ impl Default for FilterConfig {
             moving_start_sigma_gyro_bias: 0.3 * DEG,
             converged_after_epochs: 3,
             max_speed_mps: 6.0,
+            speed_prior_sigma_mps: MIN_SPEED_PRIOR_SIGMA_MPS,
+            speed_prior_interval_s: 10.0,
             divergence_window: 10,
             divergence_refused_in_row: 5,
             max_position_step_m: 0.1,
@@ -249,6 +268,7 @@ impl FilterConfig {
             ("max_speed_mps", self.max_speed_mps),
             ("max_position_step_m", self.max_position_step_m),
             ("max_coast_s", self.max_coast_s),
+            ("speed_prior_interval_s", self.speed_prior_interval_s),
         ];
         for (key, value) in positive {
             filter.check(
@@ -281,6 +301,16 @@ impl FilterConfig {
                 "set a finite value of zero or more",
             );
         }
+        filter.check(
+            self.speed_prior_sigma_mps == 0.0
+                || self.speed_prior_sigma_mps >= MIN_SPEED_PRIOR_SIGMA_MPS,
+            "speed_prior_sigma_mps",
+            self.speed_prior_sigma_mps,
+            format!(
+                "set 0 (off) or at least {MIN_SPEED_PRIOR_SIGMA_MPS}: below it the prior alone \
+                 could make an unobserved velocity look usable"
+            ),
+        );
         filter.check(
             self.gate_probability > 0.0 && self.gate_probability <= 1.0,
             "gate_probability",
@@ -361,6 +391,7 @@ mod tests {
             gate_probability: 1.5,
             stationary_start_s: 0.5,
             divergence_window: 0,
+            speed_prior_sigma_mps: 0.3,
             ..FilterConfig::default()
         };
         let message = config.validate().unwrap_err().to_string();
@@ -370,6 +401,8 @@ mod tests {
             [
                 "filter.max_imu_gap_s = -1.0: set a finite value greater than zero",
                 "filter.divergence_window = 0: set 1 or more",
+                "filter.speed_prior_sigma_mps = 0.3: set 0 (off) or at least 0.75: below it the \
+                 prior alone could make an unobserved velocity look usable",
                 "filter.gate_probability = 1.5: set a probability in (0, 1], 1 disables the gate",
                 "filter.stationary_start_s = 0.5: shorter than filter.coarse_alignment_s = 1.0: \
                  make it at least as long",

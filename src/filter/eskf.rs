@@ -25,6 +25,7 @@ use crate::sensors::ImuSample;
 
 mod pose_prior;
 mod relative_pose_update;
+mod speed_prior;
 mod zero_motion_update;
 
 /// Most covariance steps taken to bridge one IMU gap.
@@ -114,6 +115,7 @@ pub enum UpdateKind {
     RelativePoseCloned,
     RelativePoseVelocity,
     ZeroMotion,
+    SpeedPrior,
 }
 
 /// Outcome of one measurement update.
@@ -195,6 +197,8 @@ pub struct Eskf {
     first_part: Option<StationaryMeans>,
     /// Position and heading kept through a realignment after a long IMU gap.
     resume: Option<Resume>,
+    /// When the speed prior was last fused (`apply_speed_prior`).
+    last_speed_prior: Option<f64>,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -272,6 +276,7 @@ impl Eskf {
             window_still: true,
             first_part: None,
             resume: None,
+            last_speed_prior: None,
             config,
         })
     }
@@ -344,6 +349,8 @@ impl Eskf {
                 }
                 if self.phase == FilterPhase::StationaryStart {
                     self.stationary_updates(t, sample, interval);
+                } else {
+                    self.apply_speed_prior(t);
                 }
                 ImuOutcome::Propagated
             }

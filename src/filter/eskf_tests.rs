@@ -977,3 +977,94 @@ fn a_corridor_leaves_the_velocity_along_it_honestly_uncertain() {
         "summed {total} outside [{low}, {high}]"
     );
 }
+
+/// A platform at rest that nothing but its IMU observes for two minutes, with biases and tilt
+/// errors drawn from `config`'s initial sigmas: the largest velocity error over the run, the
+/// final one and the final velocity sigmas (navigation axes).
+fn unobserved_run(config: &FilterConfig, seed: u64) -> (f64, Vector3<f64>, Vector3<f64>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let trajectory = Stationary {
+        q: UnitQuaternion::from_euler_angles(0.0, -10f64.to_radians(), 0.3),
+    };
+    let mut normal = |sigma: f64| gaussian(&mut rng) * sigma;
+    let tilt = config.initial_sigma_tilt_deg.to_radians();
+    let truth = trajectory.truth(0.0);
+    let state = NominalState {
+        q: truth.q
+            * UnitQuaternion::from_scaled_axis(
+                normal(tilt).component_mul(&Vector3::new(1.0, 1.0, 0.0)),
+            ),
+        ..NominalState::at_rest(truth.q, Vector3::zeros())
+    };
+    let rate = 100.0;
+    let mut samples = trajectory.imu_samples(0.0, 120.0, rate, false);
+    ImuErrors {
+        gyro_bias: normal(config.initial_sigma_gyro_bias),
+        accel_bias: normal(config.initial_sigma_accel_bias),
+        gyro_noise_density: config.gyro_noise_density,
+        accel_noise_density: config.accel_noise_density,
+    }
+    .corrupt(&mut samples, rate, &mut rng);
+    let mut filter = Eskf::with_initial_state(config.clone(), 0.0, state).unwrap();
+    let mut worst: f64 = 0.0;
+    for sample in &samples {
+        filter.push_imu(sample);
+        worst = worst.max(filter.state().v.norm());
+    }
+    let sigmas = filter
+        .covariance()
+        .fixed_view::<3, 3>(super::state::VEL, super::state::VEL)
+        .diagonal()
+        .map(f64::sqrt);
+    (worst, filter.state().v, sigmas)
+}
+
+#[test]
+fn the_speed_prior_bounds_a_velocity_nothing_observes_and_keeps_it_unusable() {
+    let config = aligned();
+    let unusable = crate::daemon::mavlink_out::QualityPolicy::default().unusable_sigma_mps;
+    let runs: Vec<_> = (0..10).map(|seed| unobserved_run(&config, seed)).collect();
+    let inside = runs
+        .iter()
+        .filter(|(_, v, sigma)| v.iter().zip(sigma.iter()).all(|(e, s)| e.abs() <= 3.0 * s))
+        .count();
+    assert!(
+        inside >= 9,
+        "only {inside} of 10 final velocities inside 3 sigma"
+    );
+    for (worst, _, sigma) in &runs {
+        assert!(
+            *worst < 4.0 * config.speed_prior_sigma_mps,
+            "velocity error ran to {worst}"
+        );
+        assert!(
+            sigma.min() > unusable,
+            "sigma {sigma} would make the estimate usable"
+        );
+    }
+    let without = FilterConfig {
+        speed_prior_sigma_mps: 0.0,
+        ..config
+    };
+    let runaway = (0..10)
+        .map(|seed| unobserved_run(&without, seed).0)
+        .fold(0.0, f64::max);
+    assert!(
+        runaway > 4.0 * config.speed_prior_sigma_mps,
+        "without the prior only {runaway}"
+    );
+}
+
+#[test]
+fn the_speed_prior_leaves_an_observed_velocity_alone() {
+    let without = FilterConfig {
+        speed_prior_sigma_mps: 0.0,
+        ..FilterConfig::default()
+    };
+    for seed in 0..3 {
+        assert_eq!(
+            monte_carlo_run(&FilterConfig::default(), seed, Odometry::Independent),
+            monte_carlo_run(&without, seed, Odometry::Independent)
+        );
+    }
+}
