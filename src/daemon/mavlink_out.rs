@@ -242,19 +242,25 @@ pub(crate) fn statustext(severity: MavSeverity, text: &str) -> MavMessage {
 
 const STATUSTEXT_BYTES: usize = 50;
 
-/// The STATUSTEXT telling the autopilot why `reset_counter` moved to `counter`.
+/// The STATUSTEXT telling the autopilot why `reset_counter` moved to `counter`. A position step
+/// is a routine re-anchor (along a corridor nothing measures, every couple of seconds while the
+/// estimate is at quality 0), so it is INFO, which ground stations log without announcing; a
+/// restart of the filter is a WARNING.
 fn reset_text(counter: u8, reason: Option<ResetReason>) -> MavMessage {
-    let why = match reason {
-        Some(ResetReason::Diverged(_)) => "diverged, restarted",
-        Some(ResetReason::ImuGap { .. }) => "IMU gap, realigning",
-        Some(ResetReason::PositionStep { .. }) => "position step",
-        Some(ResetReason::NonFinitePropagation | ResetReason::NonFiniteUpdate) => "non-finite",
-        None => "reset",
+    let (severity, why) = match reason {
+        Some(ResetReason::Diverged(_)) => {
+            (MavSeverity::MAV_SEVERITY_WARNING, "diverged, restarted")
+        }
+        Some(ResetReason::ImuGap { .. }) => {
+            (MavSeverity::MAV_SEVERITY_WARNING, "IMU gap, realigning")
+        }
+        Some(ResetReason::PositionStep { .. }) => (MavSeverity::MAV_SEVERITY_INFO, "position step"),
+        Some(ResetReason::NonFinitePropagation | ResetReason::NonFiniteUpdate) => {
+            (MavSeverity::MAV_SEVERITY_WARNING, "non-finite")
+        }
+        None => (MavSeverity::MAV_SEVERITY_WARNING, "reset"),
     };
-    statustext(
-        MavSeverity::MAV_SEVERITY_WARNING,
-        &format!("LADAR odometry reset {counter}: {why}"),
-    )
+    statustext(severity, &format!("LADAR odometry reset {counter}: {why}"))
 }
 
 /// The answer to a TIMESYNC request (`tc1 == 0`) from `requester`, stamped with our clock in
@@ -875,6 +881,19 @@ mod tests {
             "LADAR odometry reset 1: IMU gap, realigning"
         );
         assert_eq!(stream.take_statustext(), None, "once");
+        let mut stepped = at(1.6);
+        stepped.reset_counter = 2;
+        stepped.converged = false;
+        stepped.last_reset = Some(ResetReason::PositionStep { metres: 0.4 });
+        stream.on_estimate(1.6, &stepped);
+        let Some(MavMessage::STATUSTEXT(text)) = stream.take_statustext() else {
+            panic!("no STATUSTEXT for the position step");
+        };
+        assert_eq!(
+            text.severity,
+            MavSeverity::MAV_SEVERITY_INFO,
+            "a routine re-anchor"
+        );
         assert_eq!(
             heartbeat_state(&mut stream, 2.0),
             MavState::MAV_STATE_CALIBRATING
