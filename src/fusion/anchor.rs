@@ -110,6 +110,7 @@ impl Anchored {
             crossing: false,
             confirmed: false,
             extent_m: 0.0,
+            normal_assumed: false,
         };
         // The row's normal is the mean of n_i and C n_j: make both u.
         let current_normal = self.rotation.map_or(u, |c| c.inverse() * u);
@@ -167,6 +168,7 @@ mod tests {
             crossing: true,
             confirmed: false,
             extent_m: 1.0,
+            normal_assumed: false,
         }
     }
 

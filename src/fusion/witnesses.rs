@@ -64,11 +64,17 @@ impl LoneWitnesses {
                 Witness {
                     normal: plane.normal,
                     static_surface,
+                    normal_assumed: plane.normal_assumed,
                 }
             })
             .collect();
+        let measured: Vec<Witness> = witnesses
+            .iter()
+            .filter(|w| !w.normal_assumed)
+            .copied()
+            .collect();
         Self {
-            rotation: lone(&witnesses, rotation_geometry),
+            rotation: lone(&measured, rotation_geometry),
             displacement: lone(&witnesses, displacement_geometry),
         }
     }
@@ -285,10 +291,13 @@ fn displacement_geometry(n: &Vector3<f64>) -> Matrix3<f64> {
     n * n.transpose()
 }
 
-/// A used plane's normal (body i) and whether it is taken for a static surface.
+/// A used plane's normal (body i), whether it is taken for a static surface, and whether the
+/// normal is the filter's vertical (it then witnesses no rotation).
+#[derive(Clone, Copy)]
 struct Witness {
     normal: Vector3<f64>,
     static_surface: bool,
+    normal_assumed: bool,
 }
 
 /// For each plane not taken for static, the directions the others leave unobserved that it
@@ -339,6 +348,7 @@ mod tests {
             .map(|&normal| Witness {
                 normal,
                 static_surface: false,
+                normal_assumed: false,
             })
             .collect()
     }

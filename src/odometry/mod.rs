@@ -12,6 +12,7 @@
 
 pub mod deskew;
 pub(crate) mod displacement;
+pub(crate) mod level_lines;
 pub mod lines;
 pub(crate) mod matching;
 pub mod planes;
@@ -23,6 +24,7 @@ use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};
 use crate::sensors::{Scan, ScannerSetup};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
+use level_lines::{level_planes, LevelLineParameters};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
@@ -69,6 +71,14 @@ pub struct OdometryConfig {
     /// so they lean between the two. And a level plane may be the only one facing a direction
     /// (`[integrity] lone_plane_*`): floors do not walk. 90 says the scene is not a building.
     pub building_max_tilt_deg: f64,
+    /// In a building, a level line that the other scanner's beams overshoot in its bearing
+    /// also makes a plane, level through the line (a floor, a table top), which observes the
+    /// vertical where only one scanner sees the floor (`level_lines.rs`). Not with
+    /// `accept_parallel_lines`, which keeps the paper's planes only. Off by default: with it
+    /// the hall and the corridor keep their vertical and cross-track velocity to millimetres
+    /// per second, but in a hover the filter then turns optimistic along the one direction
+    /// left free (docs/accuracy.md, "Level lines").
+    pub level_lines: bool,
     /// Planes whose normal sigma exceeds this, degrees, are dropped: they add little and their
     /// error is no longer linear in the noise (predicted sigmas turn optimistic).
     pub max_sigma_normal_deg: f64,
@@ -103,6 +113,7 @@ impl Default for OdometryConfig {
             require_third_line: false,
             accept_parallel_lines: false,
             building_max_tilt_deg: 3.0,
+            level_lines: false,
             max_sigma_normal_deg: 0.5,
             match_gate_chi2: 30.66,
             match_normal_gate_chi2: 13.82,
@@ -235,6 +246,23 @@ impl OdometryConfig {
             .map(|down| Building { down, max_tilt_rad })
     }
 
+    /// How level lines become planes, when they do.
+    pub(crate) fn level_line_parameters(
+        &self,
+        down: Option<Vector3<f64>>,
+    ) -> Option<LevelLineParameters> {
+        let enabled = self.level_lines && !self.accept_parallel_lines;
+        self.building(down)
+            .filter(|_| enabled)
+            .map(|building| LevelLineParameters {
+                building,
+                min_depth_m: LEVEL_LINE_MIN_DEPTH_M,
+                wall_margin_m: LEVEL_LINE_WALL_MARGIN_M,
+                bearing_half_width_rad: LEVEL_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
+                tilt_sigma_rad: LEVEL_LINE_TILT_SIGMA_RAD,
+            })
+    }
+
     /// Plane-extraction parameters, given the downward vertical in body axes when the filter
     /// knows it.
     pub(crate) fn plane_parameters(&self, down: Option<Vector3<f64>>) -> PlaneParameters {
@@ -336,6 +364,18 @@ impl OdometryEpoch {
 }
 
 /// The geometry core with its reusable buffers.
+/// A level line nearer the body origin's level than this (m) may be anything.
+const LEVEL_LINE_MIN_DEPTH_M: f64 = 0.3;
+/// The other scanner's beams must overshoot a level line by this (m, horizontally) for it not
+/// to be on a wall: a few times the ranging noise and a wall's skirting.
+const LEVEL_LINE_WALL_MARGIN_M: f64 = 0.3;
+/// The bearing in which the other scanner's beams are looked for, half-width in degrees.
+const LEVEL_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
+/// How far the filter's vertical and a building's floor may be from level together, rad: the
+/// level plane's normal sigma (a converged tilt is good to a milliradian or two, a floor to a
+/// few over the few metres seen).
+const LEVEL_LINE_TILT_SIGMA_RAD: f64 = 0.003;
+
 #[derive(Debug)]
 pub struct Odometer {
     config: OdometryConfig,
@@ -345,6 +385,8 @@ pub struct Odometer {
     segments: [Vec<Segment>; 2],
     lines: LineExtractor,
     planes: PlaneExtractor,
+    /// Which lines the pairs took, for the level lines.
+    paired: [Vec<bool>; 2],
     matcher: Matcher,
 }
 
@@ -371,6 +413,7 @@ impl Odometer {
             segments: Default::default(),
             lines: LineExtractor::default(),
             planes: PlaneExtractor::default(),
+            paired: [Vec::new(), Vec::new()],
             matcher: Matcher::default(),
         })
     }
@@ -457,6 +500,22 @@ impl Odometer {
             &mut out.planes,
             &mut out.unscreened,
         );
+        if let Some(parameters) = self.config.level_line_parameters(down) {
+            for (paired, segments) in self.paired.iter_mut().zip(&self.segments) {
+                paired.clear();
+                paired.resize(segments.len(), false);
+            }
+            for line in out.planes.iter().flat_map(|plane| plane.lines) {
+                self.paired[line.scanner][line.segment] = true;
+            }
+            level_planes(
+                &scan_lines,
+                &self.paired,
+                &parameters,
+                admit,
+                &mut out.planes,
+            );
+        }
     }
 
     /// Matches `current` (epoch j) to `previous` (epoch i) under `prior` and solves both.

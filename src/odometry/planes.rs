@@ -95,6 +95,9 @@ pub struct Plane {
     /// Length of its longer line, m: a lower bound on the surface's extent. A door, a person or
     /// a carried board is narrower than a wall.
     pub extent_m: f64,
+    /// Whether the normal is the building's vertical rather than measured (a level plane from
+    /// one line, `level_lines`): it tells the displacement along it, and nothing of a rotation.
+    pub normal_assumed: bool,
 }
 
 /// The lines of one scan with the beams they index and the scanner's ranging sigma.
@@ -270,6 +273,7 @@ fn plane_from_pair(
         crossing,
         confirmed: false,
         extent_m: s1.length.max(s2.length),
+        normal_assumed: false,
     })
 }
 
@@ -321,6 +325,7 @@ fn plane_from_crossing_lines(
         crossing: true,
         confirmed: false,
         extent_m: s1.length.max(s2.length),
+        normal_assumed: false,
     };
     [line1, line2]
         .iter()

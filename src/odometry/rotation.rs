@@ -61,12 +61,14 @@ pub(crate) fn solve_rotation(
     excluded: &[usize],
     parameters: &RotationParameters,
 ) -> Result<Solution, SolveError> {
+    // A plane whose normal is the filter's own vertical measures no rotation.
     let active = || {
         matches
             .iter()
             .enumerate()
             .filter(|(k, _)| !excluded.contains(k))
             .map(|(k, m)| (k, &previous[m.previous], &current[m.current]))
+            .filter(|(_, i, j)| !i.normal_assumed && !j.normal_assumed)
     };
     let geometry: Matrix3<f64> = active()
         .map(|(_, plane_i, _)| Matrix3::identity() - plane_i.normal * plane_i.normal.transpose())

@@ -138,6 +138,7 @@ fn bare_plane(id: usize, normal: Vector3<f64>, rho: f64) -> Plane {
         crossing: true,
         confirmed: false,
         extent_m: 1.0,
+        normal_assumed: false,
     }
 }
 
@@ -663,6 +664,42 @@ fn parallel_planes_leave_rotation_about_their_normal_unobservable() {
     };
     assert_eq!(unobservable.len(), 1);
     assert!((unobservable[0].x.abs() - 1.0).abs() < 1e-9);
+}
+
+#[test]
+fn a_plane_whose_normal_is_assumed_tells_the_displacement_but_no_rotation() {
+    let world = [(Vector3::x(), 2.0), (Vector3::z(), 1.5)];
+    let dr = Vector3::new(0.1, 0.0, -0.05);
+    let (previous, mut current, matches) = epoch_pair(&world, &UnitQuaternion::identity(), &dr);
+    current[1].normal_assumed = true;
+    let err = solve_rotation(
+        &previous,
+        &current,
+        &matches,
+        &UnitQuaternion::identity(),
+        &[],
+        &rotation_parameters(),
+    )
+    .unwrap_err();
+    let SolveError::UnderDetermined { unobservable } = &err else {
+        panic!("{err}")
+    };
+    assert_eq!(unobservable.len(), 1, "the wall alone: {err}");
+    let err = displacement::solve_displacement(
+        &previous,
+        &current,
+        &matches,
+        None,
+        &Vector3::zeros(),
+        &(Matrix3::identity() * 0.01),
+        &[],
+    )
+    .unwrap_err();
+    let SolveError::UnderDetermined { unobservable } = &err else {
+        panic!("{err}")
+    };
+    assert_eq!(unobservable.len(), 1, "only along y: {err}");
+    assert!((unobservable[0].y.abs() - 1.0).abs() < 1e-9);
 }
 
 #[test]
