@@ -819,6 +819,12 @@ impl Eskf {
     pub(crate) fn sigmas(&self) -> [f64; ERROR_STATES] {
         std::array::from_fn(|i| self.covariance[(i, i)].sqrt())
     }
+    /// The larger of the roll and pitch sigmas (global attitude error), rad.
+    pub(crate) fn tilt_sigma(&self) -> f64 {
+        let c = &self.covariance;
+        c[(ATT, ATT)].max(c[(ATT + 1, ATT + 1)]).sqrt()
+    }
+
     /// Gyro bias in the IMU frame, rad/s.
     #[cfg(test)]
     pub(crate) fn gyro_bias(&self) -> Vector3<f64> {

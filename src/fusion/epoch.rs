@@ -18,7 +18,7 @@ use crate::integrity::EpochReport;
 use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
-use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
+use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose, Vertical};
 use crate::sensors::Scan;
 
 /// How an epoch's planes are confirmed (`confirmation`).
@@ -95,7 +95,10 @@ impl Fusion {
                 _ => Isometry3::identity(),
             }
         };
-        let down = reference.map(|pose| pose.q.inverse_transform_vector(&Vector3::z()));
+        let vertical = reference.map(|pose| Vertical {
+            down: pose.q.inverse_transform_vector(&Vector3::z()),
+            sigma_rad: self.filter.tilt_sigma(),
+        });
         let scans = [&scans[0], &scans[1]];
         let (keyframe, prior) = match self.confirmation(t_ref) {
             Confirmation::Against { keyframe, prior } => (self.recent.at(keyframe), prior),
@@ -104,7 +107,7 @@ impl Fusion {
                     scans,
                     t_ref,
                     &pose_at,
-                    down,
+                    vertical,
                     &mut |_| true,
                     out,
                 );
@@ -121,7 +124,7 @@ impl Fusion {
                 .any(|planes| matching::has_counterpart(planes, plane, &prior, &gates))
         };
         self.odometer
-            .extract_admitted_into(scans, t_ref, &pose_at, down, &mut admit, out);
+            .extract_admitted_into(scans, t_ref, &pose_at, vertical, &mut admit, out);
         true
     }
 

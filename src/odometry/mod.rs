@@ -246,13 +246,15 @@ impl OdometryConfig {
             .map(|down| Building { down, max_tilt_rad })
     }
 
-    /// How level lines become planes, when they do.
+    /// How level lines become planes, when they do: only while the filter knows its vertical
+    /// to `LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD`, since it is their normal.
     pub(crate) fn level_line_parameters(
         &self,
-        down: Option<Vector3<f64>>,
+        vertical: Option<Vertical>,
     ) -> Option<LevelLineParameters> {
         let enabled = self.level_lines && !self.accept_parallel_lines;
-        self.building(down)
+        let known = vertical.filter(|v| v.sigma_rad <= LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD);
+        self.building(known.map(|v| v.down))
             .filter(|_| enabled)
             .map(|building| LevelLineParameters {
                 building,
@@ -375,6 +377,17 @@ const LEVEL_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
 /// level plane's normal sigma (a converged tilt is good to a milliradian or two, a floor to a
 /// few over the few metres seen).
 const LEVEL_LINE_TILT_SIGMA_RAD: f64 = 0.003;
+/// Level lines make planes only while the filter's tilt sigma is at most this, rad: just after
+/// a start in motion the vertical is known to degrees, and each correction would move a level
+/// plane's distance by the line's reach times the turn.
+const LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.01;
+
+/// The filter's downward vertical in body axes at an epoch, with its tilt sigma (rad).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Vertical {
+    pub down: Vector3<f64>,
+    pub sigma_rad: f64,
+}
 
 #[derive(Debug)]
 pub struct Odometer {
@@ -466,10 +479,11 @@ impl Odometer {
         scans: [&Scan; 2],
         t_ref: f64,
         pose_at: PoseAt<'_>,
-        down: Option<Vector3<f64>>,
+        vertical: Option<Vertical>,
         admit: &mut dyn FnMut(&Plane) -> bool,
         out: &mut EpochPlanes,
     ) {
+        let down = vertical.map(|v| v.down);
         out.t_ref = t_ref;
         out.down = down;
         for (k, scan) in scans.into_iter().enumerate() {
@@ -500,7 +514,7 @@ impl Odometer {
             &mut out.planes,
             &mut out.unscreened,
         );
-        if let Some(parameters) = self.config.level_line_parameters(down) {
+        if let Some(parameters) = self.config.level_line_parameters(vertical) {
             for (paired, segments) in self.paired.iter_mut().zip(&self.segments) {
                 paired.clear();
                 paired.resize(segments.len(), false);
