@@ -357,7 +357,7 @@ fn study_open_room_20_runs() {
 }
 
 #[test]
-#[ignore = "release-mode study; fails today: mean NEES 1.8 along body y, from one start (docs/autopilot.md)"]
+#[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_open_room_started_in_motion_20_runs() {
     let trials = starts_in_motion("open-room", 20, 90.0, 30.0);
     study("open-room started in motion, 20 runs", &trials)

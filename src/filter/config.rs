@@ -88,6 +88,15 @@ pub struct FilterConfig {
     pub zupt_interval_s: f64,
     /// Sigma of the zero-velocity pseudo-measurement, m/s (vibration, hand shake).
     pub zupt_velocity_sigma_mps: f64,
+    /// Rotation rate a platform taken for still may keep up unseen, rad/s: a hand-held rig, a
+    /// rocking vehicle, a lift-off gentler than the stillness test (`still_max_rate_change`
+    /// per window) can see. When motion ends the stationary start it may have begun earlier,
+    /// and the zero-rate updates since then took it for gyro bias, so the bias gets this much
+    /// uncertainty back (a start that runs its full length saw no motion and keeps it all).
+    /// Without it a hover that began gently left the pitch-rate bias 4 sigma off, and where
+    /// nothing observes the pitch, gravity turned that into an acceleration the velocity sigma
+    /// did not cover (docs/accuracy.md, "The stationary start's gyro bias").
+    pub still_sway_rate_sigma: f64,
     /// Longest IMU interval integrated normally, s; a longer gap marks the filter degraded.
     pub max_imu_gap_s: f64,
     /// Probability of the chi-square innovation gate on the NIS; 1.0 disables the gate.
@@ -188,6 +197,7 @@ impl Default for FilterConfig {
             still_max_rate_change: 0.005,
             zupt_interval_s: 0.1,
             zupt_velocity_sigma_mps: 0.01,
+            still_sway_rate_sigma: 2e-4,
             max_imu_gap_s: 0.05,
             gate_probability: 0.9999,
             relative_pose_update: RelativePoseUpdate::Cloned,
@@ -248,6 +258,7 @@ impl FilterConfig {
             ("still_max_rate_change", self.still_max_rate_change),
             ("zupt_interval_s", self.zupt_interval_s),
             ("zupt_velocity_sigma_mps", self.zupt_velocity_sigma_mps),
+            ("still_sway_rate_sigma", self.still_sway_rate_sigma),
             ("max_imu_gap_s", self.max_imu_gap_s),
             ("epoch_time_tolerance_s", self.epoch_time_tolerance_s),
             ("epoch_max_delay_s", self.epoch_max_delay_s),

@@ -679,6 +679,39 @@ fn motion_after_a_still_alignment_ends_the_stationary_start() {
     assert_eq!(filter.phase(), FilterPhase::Navigating);
 }
 
+/// The bump ends the start: the zero-rate updates before it may have taken a motion too gentle
+/// to see for gyro bias, so the bias sigma gets `still_sway_rate_sigma` back. A start that runs
+/// its full length keeps what it learnt.
+#[test]
+fn motion_that_ends_the_stationary_start_gives_the_gyro_bias_its_sway_back() {
+    let config = FilterConfig {
+        stationary_start_s: 5.0,
+        ..FilterConfig::default()
+    };
+    let gyro_bias_sigma = |filter: &Eskf| filter.sigmas()[super::state::GYRO_BIAS + 1];
+    let samples = still_with_a_bump(300);
+    let mut moved = Eskf::new(config.clone()).unwrap();
+    for sample in &samples[..250] {
+        moved.push_imu(sample);
+    }
+    let learnt = gyro_bias_sigma(&moved);
+    assert!(learnt < config.still_sway_rate_sigma, "{learnt}");
+    for sample in &samples[250..] {
+        moved.push_imu(sample);
+    }
+    assert!(gyro_bias_sigma(&moved) >= config.still_sway_rate_sigma);
+    let mut timed_out = Eskf::new(FilterConfig {
+        stationary_start_s: 2.0,
+        ..config
+    })
+    .unwrap();
+    for sample in &samples[..250] {
+        timed_out.push_imu(sample);
+    }
+    assert_eq!(timed_out.phase(), FilterPhase::Navigating);
+    assert!(gyro_bias_sigma(&timed_out) < config.still_sway_rate_sigma);
+}
+
 mod hostile_input {
     use super::*;
     use proptest::prelude::*;

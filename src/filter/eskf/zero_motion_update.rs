@@ -7,7 +7,7 @@ use super::{Eskf, FilterPhase, UpdateKind};
 use crate::filter::alignment::zero_motion_rows;
 use crate::filter::chi_square_quantile;
 use crate::filter::relative_pose::RelativePoseMeasurement;
-use crate::filter::state::{ACCEL_BIAS, ATT, VEL};
+use crate::filter::state::{ACCEL_BIAS, ATT, GYRO_BIAS, VEL};
 use crate::sensors::ImuSample;
 
 impl Eskf {
@@ -41,7 +41,15 @@ impl Eskf {
         }
     }
 
+    /// Motion ends the start. It may have begun before the IMU or the odometry could see it, and
+    /// the zero-rate updates since then took it for gyro bias: the bias gets back the
+    /// uncertainty of such an unseen motion (`FilterConfig::still_sway_rate_sigma`). A start
+    /// that runs its full length saw no motion and keeps what it learnt.
     fn end_stationary_start(&mut self) {
+        let sway = self.config.still_sway_rate_sigma;
+        for k in 0..3 {
+            self.covariance[(GYRO_BIAS + k, GYRO_BIAS + k)] += sway * sway;
+        }
         self.counters.motion_during_start += 1;
         self.zero_motion = None;
         self.phase = FilterPhase::Navigating;
