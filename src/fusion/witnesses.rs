@@ -68,13 +68,8 @@ impl LoneWitnesses {
                 }
             })
             .collect();
-        let measured: Vec<Witness> = witnesses
-            .iter()
-            .filter(|w| !w.normal_assumed)
-            .copied()
-            .collect();
         Self {
-            rotation: lone(&measured, rotation_geometry),
+            rotation: lone(&witnesses, rotation_geometry),
             displacement: lone(&witnesses, displacement_geometry),
         }
     }
@@ -281,19 +276,23 @@ fn settle(
     }
 }
 
-/// What a plane with normal `n` tells of a rotation: the turn about any axis but `n`.
-fn rotation_geometry(n: &Vector3<f64>) -> Matrix3<f64> {
+/// What a plane tells of a rotation: the turn about any axis but its normal, and nothing when
+/// the normal is the filter's own vertical.
+fn rotation_geometry(witness: &Witness) -> Matrix3<f64> {
+    let n = witness.normal;
+    if witness.normal_assumed {
+        return Matrix3::zeros();
+    }
     Matrix3::identity() - n * n.transpose()
 }
 
-/// What a plane with normal `n` tells of a displacement: its component along `n`.
-fn displacement_geometry(n: &Vector3<f64>) -> Matrix3<f64> {
-    n * n.transpose()
+/// What a plane tells of a displacement: its component along its normal.
+fn displacement_geometry(witness: &Witness) -> Matrix3<f64> {
+    witness.normal * witness.normal.transpose()
 }
 
 /// A used plane's normal (body i), whether it is taken for a static surface, and whether the
 /// normal is the filter's vertical (it then witnesses no rotation).
-#[derive(Clone, Copy)]
 struct Witness {
     normal: Vector3<f64>,
     static_surface: bool,
@@ -303,14 +302,11 @@ struct Witness {
 /// For each plane not taken for static, the directions the others leave unobserved that it
 /// observes, judged against the whole geometry (`sum` of `geometry` over the normals) as the
 /// solves judge their own.
-fn lone(
-    witnesses: &[Witness],
-    geometry: impl Fn(&Vector3<f64>) -> Matrix3<f64>,
-) -> Vec<Vector3<f64>> {
+fn lone(witnesses: &[Witness], geometry: impl Fn(&Witness) -> Matrix3<f64>) -> Vec<Vector3<f64>> {
     if witnesses.iter().all(|w| w.static_surface) {
         return Vec::new();
     }
-    let each: Vec<Matrix3<f64>> = witnesses.iter().map(|w| geometry(&w.normal)).collect();
+    let each: Vec<Matrix3<f64>> = witnesses.iter().map(&geometry).collect();
     let all: Matrix3<f64> = each.iter().sum();
     let floor = PARALLEL_TOLERANCE * all.symmetric_eigen().eigenvalues.amax();
     let mut directions = Vec::new();
