@@ -942,6 +942,38 @@ fn a_correction_that_moves_the_position_a_lot_comes_with_a_reset() {
     ));
 }
 
+/// `seconds` of `trajectory`'s IMU at 100 Hz with biases drawn from `config`'s initial sigmas
+/// and its white noise.
+fn imu_with_drawn_errors(
+    trajectory: &impl Trajectory,
+    seconds: f64,
+    config: &FilterConfig,
+    rng: &mut ChaCha8Rng,
+) -> Vec<ImuSample> {
+    let rate = 100.0;
+    let mut samples = trajectory.imu_samples(0.0, seconds, rate, false);
+    ImuErrors {
+        gyro_bias: gaussian(rng) * config.initial_sigma_gyro_bias,
+        accel_bias: gaussian(rng) * config.initial_sigma_accel_bias,
+        gyro_noise_density: config.gyro_noise_density,
+        accel_noise_density: config.accel_noise_density,
+    }
+    .corrupt(&mut samples, rate, rng);
+    samples
+}
+
+/// `q` tilted by roll and pitch errors drawn from `config`'s initial tilt sigma.
+fn drawn_tilt(
+    q: &UnitQuaternion<f64>,
+    config: &FilterConfig,
+    rng: &mut ChaCha8Rng,
+) -> UnitQuaternion<f64> {
+    let tilt = config.initial_sigma_tilt_deg.to_radians();
+    q * UnitQuaternion::from_scaled_axis(
+        (gaussian(rng) * tilt).component_mul(&Vector3::new(1.0, 1.0, 0.0)),
+    )
+}
+
 /// One seeded walk down a bare corridor: the body pitched -10 deg walks along north at
 /// 0.3 m/s, and every second the odometry measures the rotation and the displacement but for
 /// the direction along the corridor (the walls and the floor leave it free). Initial errors,
@@ -949,32 +981,19 @@ fn a_correction_that_moves_the_position_a_lot_comes_with_a_reset() {
 /// sigma at the end.
 fn corridor_run(config: &FilterConfig, seed: u64) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let rate = 100.0;
     let trajectory = ConstantRotation {
         q0: UnitQuaternion::from_euler_angles(0.0, -10f64.to_radians(), 0.0),
         rate: Vector3::zeros(),
         velocity: Vector3::new(0.3, 0.0, 0.0),
     };
-    let mut normal = |sigma: f64| gaussian(&mut rng) * sigma;
-    let tilt = config.initial_sigma_tilt_deg.to_radians();
     let truth0 = trajectory.truth(0.0);
     let state = NominalState {
         p: truth0.p,
-        v: truth0.v - normal(config.initial_sigma_velocity_mps),
-        q: truth0.q
-            * UnitQuaternion::from_scaled_axis(
-                normal(tilt).component_mul(&Vector3::new(1.0, 1.0, 0.0)),
-            ),
+        v: truth0.v - gaussian(&mut rng) * config.initial_sigma_velocity_mps,
+        q: drawn_tilt(&truth0.q, config, &mut rng),
         ..NominalState::at_rest(truth0.q, Vector3::zeros())
     };
-    let mut samples = trajectory.imu_samples(0.0, 60.0, rate, false);
-    ImuErrors {
-        gyro_bias: normal(config.initial_sigma_gyro_bias),
-        accel_bias: normal(config.initial_sigma_accel_bias),
-        gyro_noise_density: config.gyro_noise_density,
-        accel_noise_density: config.accel_noise_density,
-    }
-    .corrupt(&mut samples, rate, &mut rng);
+    let samples = imu_with_drawn_errors(&trajectory, 60.0, config, &mut rng);
     let along = truth0.q.inverse_transform_vector(&Vector3::x());
     let mut filter = Eskf::with_initial_state(config.clone(), 0.0, state).unwrap();
     let mut epoch_ref = None;
@@ -1019,25 +1038,12 @@ fn unobserved_run(config: &FilterConfig, seed: u64) -> (f64, Vector3<f64>, Vecto
     let trajectory = Stationary {
         q: UnitQuaternion::from_euler_angles(0.0, -10f64.to_radians(), 0.3),
     };
-    let mut normal = |sigma: f64| gaussian(&mut rng) * sigma;
-    let tilt = config.initial_sigma_tilt_deg.to_radians();
     let truth = trajectory.truth(0.0);
     let state = NominalState {
-        q: truth.q
-            * UnitQuaternion::from_scaled_axis(
-                normal(tilt).component_mul(&Vector3::new(1.0, 1.0, 0.0)),
-            ),
+        q: drawn_tilt(&truth.q, config, &mut rng),
         ..NominalState::at_rest(truth.q, Vector3::zeros())
     };
-    let rate = 100.0;
-    let mut samples = trajectory.imu_samples(0.0, 120.0, rate, false);
-    ImuErrors {
-        gyro_bias: normal(config.initial_sigma_gyro_bias),
-        accel_bias: normal(config.initial_sigma_accel_bias),
-        gyro_noise_density: config.gyro_noise_density,
-        accel_noise_density: config.accel_noise_density,
-    }
-    .corrupt(&mut samples, rate, &mut rng);
+    let samples = imu_with_drawn_errors(&trajectory, 120.0, config, &mut rng);
     let mut filter = Eskf::with_initial_state(config.clone(), 0.0, state).unwrap();
     let mut worst: f64 = 0.0;
     for sample in &samples {
