@@ -145,8 +145,8 @@ impl RelativePoseMeasurement {
     /// `U`, cross-covariance `C`), `n_j` the noise the current planes put in (carried out to the
     /// next pose by the update) and `r` the rest, of covariance `R - L C^T`.
     ///
-    /// `covariance` (the filter's, with the clone open) adds the displacement's second-order
-    /// term (`second_order_noise`).
+    /// `covariance` (the filter's, with the clone open) adds what the attitude error does
+    /// through motion the Jacobian leaves out of its lever (`lever_noise`).
     pub(crate) fn cloned_rows(
         &self,
         reference: &Pose,
@@ -181,16 +181,14 @@ impl RelativePoseMeasurement {
             set(&mut h, POS, &r_i_t);
             set(&mut h, CLONE_POS, &-r_i_t);
             // The lever of the clone's attitude error is the motion the planes observe only
-            // (`unobserved_lever_noise`).
+            // (`lever_noise`).
             let motion = current.p - reference.p;
             let observed = r_i_t.transpose() * translation.observability.projector() * r_i_t;
             let observed_motion = observed * motion;
             set(&mut h, CLONE_ATT, &(r_i_t * observed_motion.cross_matrix()));
             set(&mut h, CARRIED + 3, &shared.l);
             let residual = translation.displacement - d_hat - shared.carried_mean;
-            let noise = shared.noise
-                + second_order_noise(&r_i_t, covariance)
-                + unobserved_lever_noise(&r_i_t, &(motion - observed_motion), covariance);
+            let noise = shared.noise + lever_noise(&r_i_t, covariance, &(motion - observed_motion));
             rows.push(&residual, &h, &noise, &translation.observability);
             rows.carry_out(1, &shared.current, &translation.observability);
         }
@@ -243,50 +241,44 @@ impl RelativePoseMeasurement {
     }
 }
 
-/// Covariance of the displacement's second-order term, which the linearisation drops. With
-/// the clone's attitude error `dtheta_i` and the error `e` of the estimated motion
-/// `p_j - p_i`, the displacement is `R_i^T (p_j - p_i + e + [p_j - p_i]x dtheta_i + [e]x
-/// dtheta_i)`: the Jacobian takes the lever of the attitude error at the estimated motion, and
-/// the last term is what that lever is wrong by. It is negligible where the planes observe
-/// the motion, but along a direction they leave free (a bare corridor, a start in motion) `e`
-/// is as large as the velocity is uncertain, and then a milliradian of tilt error times a
-/// metre of unknown motion along the corridor shows as a millimetre across it. Fused without
-/// this term, a row across the corridor (the floor's normal, a wall's) reads that millimetre
-/// as information along the corridor that no surface gave, and the filter reports a velocity
-/// sigma far below its error. `E[[e]x P [e]x^T] = sum_k lambda_k [v_k]x P [v_k]x^T` over the
-/// eigenpairs of `e`'s covariance, taken independent of the attitude error.
-fn second_order_noise(r_i_t: &Matrix3<f64>, covariance: &Covariance) -> Matrix3<f64> {
+/// Covariance of what the clone's attitude error does to the displacement through motion the
+/// Jacobian does not take as its lever. With the attitude error `dtheta_i` and the error `e` of
+/// the estimated motion `p_j - p_i`, the displacement is `R_i^T (p_j - p_i + e + [p_j - p_i]x
+/// dtheta_i + [e]x dtheta_i)`, and two parts of that lever are left to the noise:
+/// - `e` itself, the second-order term. Negligible where the planes observe the motion, but
+///   along a direction they leave free (a bare corridor, a start in motion) `e` is as large as
+///   the velocity is uncertain, and a milliradian of tilt error times a metre of unknown motion
+///   shows as a millimetre across the corridor, which a row there (the floor's, a wall's)
+///   would read as information along it that no surface gave.
+/// - the estimated motion along the free directions, `unobserved_motion` (the Jacobian takes
+///   the observed part only). That estimate is the dead-reckoned velocity, wrong by as much as
+///   it is uncertain and correlated with the tilt error that drives it; as a lever it let the
+///   floor's row "measure" the tilt through a motion nobody measured, and on the bare corridor
+///   the pitch and the accelerometer bias moved together until the filter reported the
+///   velocity along the corridor to 0.5 m/s while it was 1.7 m/s wrong (mean NEES 3-5;
+///   `eskf_tests::a_corridor_leaves_the_velocity_along_it_honestly_uncertain`).
+///
+/// Both are `E[[x]x P [x]x^T]` over a motion `x` taken independent of the attitude error,
+/// linear in `x`'s second moment `S = Cov(e) + m m^T`: `sum_k lambda_k [v_k]x P [v_k]x^T` over
+/// the eigenpairs of `S`.
+fn lever_noise(
+    r_i_t: &Matrix3<f64>,
+    covariance: &Covariance,
+    unobserved_motion: &Vector3<f64>,
+) -> Matrix3<f64> {
     let block = |a: usize, b: usize| -> Matrix3<f64> { covariance.fixed_view::<3, 3>(a, b).into() };
-    let motion = block(POS, POS) + block(CLONE_POS, CLONE_POS)
+    let motion_error = block(POS, POS) + block(CLONE_POS, CLONE_POS)
         - block(POS, CLONE_POS)
         - block(CLONE_POS, POS);
+    let second_moment = (motion_error + motion_error.transpose()) * 0.5
+        + unobserved_motion * unobserved_motion.transpose();
     let attitude = block(CLONE_ATT, CLONE_ATT);
-    let eigen = ((motion + motion.transpose()) * 0.5).symmetric_eigen();
+    let eigen = second_moment.symmetric_eigen();
     let nav = (0..3).fold(Matrix3::zeros(), |sum, k| {
         let lever = Vector3::from(eigen.eigenvectors.column(k)).cross_matrix();
         sum + lever * attitude * lever.transpose() * eigen.eigenvalues[k].max(0.0)
     });
     r_i_t * nav * r_i_t.transpose()
-}
-
-/// What the clone's attitude error does through the motion along the directions the planes
-/// leave free, taken as noise of its own size instead of as a lever. The Jacobian takes the
-/// lever `[p_j - p_i]x dtheta_i` at the estimated motion; along a free direction that estimate
-/// is only the dead-reckoned velocity, wrong by as much as it is uncertain and correlated with
-/// the tilt error that drives it (tilt leaks gravity into exactly that velocity). As a lever it
-/// let the floor's row "measure" the tilt through a motion nobody measured, and with a bias:
-/// on the bare corridor the pitch and the accelerometer bias moved together along the one
-/// combination a still start leaves free, and the filter reported the velocity along the
-/// corridor to 0.5 m/s while it was 1.7 m/s wrong (mean NEES 3-5 per body axis).
-/// `eskf_tests::a_corridor_leaves_the_velocity_along_it_honestly_uncertain` reproduces it.
-fn unobserved_lever_noise(
-    r_i_t: &Matrix3<f64>,
-    unobserved_motion: &Vector3<f64>,
-    covariance: &Covariance,
-) -> Matrix3<f64> {
-    let attitude: Matrix3<f64> = covariance.fixed_view::<3, 3>(CLONE_ATT, CLONE_ATT).into();
-    let lever = unobserved_motion.cross_matrix();
-    r_i_t * lever * attitude * lever.transpose() * r_i_t.transpose()
 }
 
 /// One block's share of the noise: the carried noise's Jacobian `L` and its estimate's share
