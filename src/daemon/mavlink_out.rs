@@ -867,28 +867,30 @@ mod tests {
             heartbeat_state(&mut stream, 1.0),
             MavState::MAV_STATE_ACTIVE
         );
-        let mut restarted = at(1.5);
-        restarted.reset_counter = 1;
-        restarted.converged = false;
-        restarted.last_reset = Some(ResetReason::ImuGap { seconds: 3.0 });
-        stream.on_estimate(1.5, &restarted);
-        let Some(MavMessage::STATUSTEXT(text)) = stream.take_statustext() else {
-            panic!("no STATUSTEXT for the reset");
+        // A (re)start that has not converged yet, with `reset_counter` moved to `counter`.
+        let restart = |t: f64, counter: u8, reason: ResetReason| Estimate {
+            reset_counter: counter,
+            converged: false,
+            last_reset: Some(reason),
+            ..at(t)
         };
+        let text_after = |stream: &mut MavlinkStream, estimate: &Estimate| {
+            stream.on_estimate(estimate.t, estimate);
+            match stream.take_statustext() {
+                Some(MavMessage::STATUSTEXT(text)) => text,
+                other => panic!("no STATUSTEXT for {estimate:?}: {other:?}"),
+            }
+        };
+        let imu_gap = ResetReason::ImuGap { seconds: 3.0 };
+        let text = text_after(&mut stream, &restart(1.5, 1, imu_gap));
         assert_eq!(text.severity, MavSeverity::MAV_SEVERITY_WARNING);
         assert_eq!(
             text.text.to_str().unwrap().trim_end_matches('\0'),
             "LADAR odometry reset 1: IMU gap, realigning"
         );
         assert_eq!(stream.take_statustext(), None, "once");
-        let mut stepped = at(1.6);
-        stepped.reset_counter = 2;
-        stepped.converged = false;
-        stepped.last_reset = Some(ResetReason::PositionStep { metres: 0.4 });
-        stream.on_estimate(1.6, &stepped);
-        let Some(MavMessage::STATUSTEXT(text)) = stream.take_statustext() else {
-            panic!("no STATUSTEXT for the position step");
-        };
+        let step = ResetReason::PositionStep { metres: 0.4 };
+        let text = text_after(&mut stream, &restart(1.6, 2, step));
         assert_eq!(
             text.severity,
             MavSeverity::MAV_SEVERITY_INFO,
@@ -898,8 +900,11 @@ mod tests {
             heartbeat_state(&mut stream, 2.0),
             MavState::MAV_STATE_CALIBRATING
         );
-        restarted.degraded = true;
-        stream.on_estimate(2.5, &restarted);
+        let degraded = Estimate {
+            degraded: true,
+            ..restart(2.5, 2, imu_gap)
+        };
+        stream.on_estimate(2.5, &degraded);
         assert_eq!(
             heartbeat_state(&mut stream, 3.0),
             MavState::MAV_STATE_CRITICAL
