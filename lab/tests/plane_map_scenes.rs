@@ -276,10 +276,11 @@ fn mean(values: impl Iterator<Item = f64>) -> f64 {
 }
 
 /// One row of the baseline: `SEEDS` runs of one scene with one rig at one epoch rate, averaged.
-fn study(name: &str, rig: Rig, epoch_rate_hz: f64, level_lines: bool) {
+fn study(name: &str, rig: Rig, epoch_rate_hz: f64, single: SingleLines) {
     let scenario = scenario(name, rig, epoch_rate_hz);
     let mut settings = settings(epoch_rate_hz);
-    settings.odometry.level_lines = level_lines;
+    settings.odometry.level_lines = single.level;
+    settings.odometry.wall_lines = single.walls;
     let runs: Vec<Baseline> = SEEDS
         .iter()
         .map(|&seed| {
@@ -340,16 +341,36 @@ fn study(name: &str, rig: Rig, epoch_rate_hz: f64, level_lines: bool) {
     // docs/accuracy.md's baseline is stale. (Level lines observe the vertical: not with them.)
     let unobserved_share = mean(runs.iter().map(|r| r.unobserved_share));
     assert!(
-        level_lines || unobserved_share >= 0.8,
+        single != PAIRS_ONLY || unobserved_share >= 0.8,
         "{}: {unobserved_share}",
         scenario.name
     );
 }
 
-fn study_scene(name: &str, level_lines: bool) {
+/// Which single lines make planes besides the pairs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SingleLines {
+    level: bool,
+    walls: bool,
+}
+
+const PAIRS_ONLY: SingleLines = SingleLines {
+    level: false,
+    walls: false,
+};
+const LEVEL: SingleLines = SingleLines {
+    level: true,
+    walls: false,
+};
+const LEVEL_AND_WALLS: SingleLines = SingleLines {
+    level: true,
+    walls: true,
+};
+
+fn study_scene(name: &str, single: SingleLines) {
     for rig in [Rig::Paper, Rig::Rolled] {
         for rate in [1.0, 10.0] {
-            study(name, rig, rate, level_lines);
+            study(name, rig, rate, single);
         }
     }
 }
@@ -357,38 +378,62 @@ fn study_scene(name: &str, level_lines: bool) {
 #[test]
 #[ignore]
 fn baseline_open_room() {
-    study_scene("open-room", false);
+    study_scene("open-room", PAIRS_ONLY);
 }
 
 /// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
 #[test]
 #[ignore]
 fn level_lines_open_room() {
-    study_scene("open-room", true);
+    study_scene("open-room", LEVEL);
 }
 
 #[test]
 #[ignore]
 fn baseline_hall_walk() {
-    study_scene("hall-walk", false);
+    study_scene("hall-walk", PAIRS_ONLY);
 }
 
 /// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
 #[test]
 #[ignore]
 fn level_lines_hall_walk() {
-    study_scene("hall-walk", true);
+    study_scene("hall-walk", LEVEL);
 }
 
 #[test]
 #[ignore]
 fn baseline_bare_corridor() {
-    study_scene("bare-corridor", false);
+    study_scene("bare-corridor", PAIRS_ONLY);
 }
 
 /// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
 #[test]
 #[ignore]
 fn level_lines_bare_corridor() {
-    study_scene("bare-corridor", true);
+    study_scene("bare-corridor", LEVEL);
+}
+
+/// The same with `odometry.level_lines` and `odometry.wall_lines` (docs/accuracy.md, "Wall
+/// lines").
+#[test]
+#[ignore]
+fn building_lines_open_room() {
+    study_scene("open-room", LEVEL_AND_WALLS);
+}
+
+/// The same with `odometry.level_lines` and `odometry.wall_lines` (docs/accuracy.md, "Wall
+/// lines").
+#[test]
+#[ignore]
+fn building_lines_hall_walk() {
+    study_scene("hall-walk", LEVEL_AND_WALLS);
+}
+
+/// The same with `odometry.level_lines` and `odometry.wall_lines` (docs/accuracy.md, "Wall
+/// lines").
+#[test]
+#[ignore]
+fn building_lines_bare_corridor() {
+    study_scene("bare-corridor", LEVEL_AND_WALLS);
 }

@@ -19,6 +19,7 @@ pub mod planes;
 pub(crate) mod rotation;
 pub mod synthetic;
 pub(crate) mod uncertainty;
+pub(crate) mod wall_lines;
 
 use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};
@@ -31,6 +32,7 @@ use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 use planes::{Building, ParallelLines, Plane, PlaneExtractor, PlaneParameters, ScanLines};
 use rotation::{solve_rotation, RotationParameters};
 use serde::{Deserialize, Serialize};
+use wall_lines::{wall_planes, WallLineParameters};
 
 /// Settings of the geometry core. Every key has a default; unknown keys are refused.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,11 +76,13 @@ pub struct OdometryConfig {
     /// In a building, a level line that the other scanner's beams overshoot in its bearing
     /// also makes a plane, level through the line (a floor, a table top), which observes the
     /// vertical where only one scanner sees the floor (`level_lines.rs`). Not with
-    /// `accept_parallel_lines`, which keeps the paper's planes only. Off by default: with it
-    /// the hall and the corridor keep their vertical and cross-track velocity to millimetres
-    /// per second, but in a hover the filter then turns optimistic along the one direction
-    /// left free (docs/accuracy.md, "Level lines").
+    /// `accept_parallel_lines`, which keeps the paper's planes only.
     pub level_lines: bool,
+    /// In a building, a line that no pair took and that a wall must carry (it slopes, or it is
+    /// level and stands above where the other scanner's beams end in its bearing) also makes a
+    /// plane, plumb through the line, which observes the motion toward the walls only one
+    /// scanner sees (`wall_lines.rs`). Not with `accept_parallel_lines`.
+    pub wall_lines: bool,
     /// Planes whose normal sigma exceeds this, degrees, are dropped: they add little and their
     /// error is no longer linear in the noise (predicted sigmas turn optimistic).
     pub max_sigma_normal_deg: f64,
@@ -114,6 +118,7 @@ impl Default for OdometryConfig {
             accept_parallel_lines: false,
             building_max_tilt_deg: 3.0,
             level_lines: false,
+            wall_lines: false,
             max_sigma_normal_deg: 0.5,
             match_gate_chi2: 30.66,
             match_normal_gate_chi2: 13.82,
@@ -265,6 +270,27 @@ impl OdometryConfig {
             })
     }
 
+    /// How single lines become plumb planes, when they do: only while the filter knows its
+    /// vertical to `LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD`, since the normal is square to it.
+    pub(crate) fn wall_line_parameters(
+        &self,
+        vertical: Option<Vertical>,
+    ) -> Option<WallLineParameters> {
+        let enabled = self.wall_lines && !self.accept_parallel_lines;
+        let known = vertical.filter(|v| v.sigma_rad <= LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD);
+        self.building(known.map(|v| v.down))
+            .filter(|_| enabled)
+            .map(|building| WallLineParameters {
+                building,
+                max_slope_rad: WALL_LINE_MAX_SLOPE_DEG.to_radians(),
+                min_level_length_m: WALL_LINE_MIN_LEVEL_LENGTH_M,
+                margin_m: WALL_LINE_MARGIN_M,
+                vertical_sigma_rad: known.map_or(0.0, |v| v.sigma_rad),
+                bearing_half_width_rad: LEVEL_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
+                tilt_sigma_rad: LEVEL_LINE_TILT_SIGMA_RAD,
+            })
+    }
+
     /// Plane-extraction parameters, given the downward vertical in body axes when the filter
     /// knows it.
     pub(crate) fn plane_parameters(&self, down: Option<Vector3<f64>>) -> PlaneParameters {
@@ -381,6 +407,15 @@ const LEVEL_LINE_TILT_SIGMA_RAD: f64 = 0.003;
 /// a start in motion the vertical is known to degrees, and each correction would move a level
 /// plane's distance by the line's reach times the turn.
 const LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.01;
+
+/// Single lines steeper than this, degrees from level, make no plumb plane.
+const WALL_LINE_MAX_SLOPE_DEG: f64 = 60.0;
+/// A level single line is taken for a wall only from this length (m): deeper than a table.
+const WALL_LINE_MIN_LEVEL_LENGTH_M: f64 = 1.2;
+/// The sigma (m) of where a beam of the other scanner ends against a level line, for the
+/// test that the line stands clear of what those beams meet (`WallLineParameters::margin_m`):
+/// ranging, and a floor's or a ceiling's unevenness.
+const WALL_LINE_MARGIN_M: f64 = 0.02;
 
 /// The filter's downward vertical in body axes at an epoch, with its tilt sigma (rad).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -514,17 +549,38 @@ impl Odometer {
             &mut out.planes,
             &mut out.unscreened,
         );
-        if let Some(parameters) = self.config.level_line_parameters(vertical) {
-            for (paired, segments) in self.paired.iter_mut().zip(&self.segments) {
-                paired.clear();
-                paired.resize(segments.len(), false);
-            }
-            for line in out.planes.iter().flat_map(|plane| plane.lines) {
-                self.paired[line.scanner][line.segment] = true;
-            }
+        let level = self.config.level_line_parameters(vertical);
+        let walls = self.config.wall_line_parameters(vertical);
+        if level.is_none() && walls.is_none() {
+            return;
+        }
+        for (paired, segments) in self.paired.iter_mut().zip(&self.segments) {
+            paired.clear();
+            paired.resize(segments.len(), false);
+        }
+        for line in out.planes.iter().flat_map(|plane| plane.lines) {
+            self.paired[line.scanner][line.segment] = true;
+        }
+        if let Some(parameters) = level {
+            let first_level = out.planes.len();
             level_planes(
                 &scan_lines,
                 &self.paired,
+                &parameters,
+                admit,
+                &mut out.planes,
+            );
+            for line in out.planes[first_level..]
+                .iter()
+                .flat_map(|plane| plane.lines)
+            {
+                self.paired[line.scanner][line.segment] = true;
+            }
+        }
+        if let Some(parameters) = walls {
+            wall_planes(
+                &scan_lines,
+                &mut self.paired,
                 &parameters,
                 admit,
                 &mut out.planes,
