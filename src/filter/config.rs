@@ -93,9 +93,11 @@ pub struct FilterConfig {
     /// per window) can see. When motion ends the stationary start it may have begun earlier,
     /// and the zero-rate updates since then took it for gyro bias, so the bias gets this much
     /// uncertainty back (a start that runs its full length saw no motion and keeps it all).
-    /// Without it a hover that began gently left the pitch-rate bias 4 sigma off, and where
-    /// nothing observes the pitch, gravity turned that into an acceleration the velocity sigma
-    /// did not cover (docs/accuracy.md, "The stationary start's gyro bias").
+    /// The default is a third of `still_max_rate_change`, so that a rate just under what the
+    /// test sees is 3 sigma. Without it a hover that began gently left the pitch-rate bias
+    /// 1.5 mrad/s off, and where nothing observes the pitch, gravity turned that into an
+    /// acceleration the velocity sigma did not cover (docs/accuracy.md, "The stationary
+    /// start's gyro bias").
     pub still_sway_rate_sigma: f64,
     /// Longest IMU interval integrated normally, s; a longer gap marks the filter degraded.
     pub max_imu_gap_s: f64,
@@ -197,7 +199,7 @@ impl Default for FilterConfig {
             still_max_rate_change: 0.005,
             zupt_interval_s: 0.1,
             zupt_velocity_sigma_mps: 0.01,
-            still_sway_rate_sigma: 2e-4,
+            still_sway_rate_sigma: 1.7e-3,
             max_imu_gap_s: 0.05,
             gate_probability: 0.9999,
             relative_pose_update: RelativePoseUpdate::Cloned,
