@@ -4,7 +4,7 @@
 
 use divan::{black_box, AllocProfiler, Bencher};
 use ladar_odometer::odometry::synthetic::{cast_scan, crossed_mounts, hallway};
-use ladar_odometer::odometry::{EpochPlanes, Odometer, OdometryConfig, RelativePose};
+use ladar_odometer::odometry::{EpochPlanes, Odometer, OdometryConfig, RelativePose, Vertical};
 use ladar_odometer::sensors::{Scan, ScannerGeometry, ScannerSetup};
 use nalgebra::{Isometry3, Vector3};
 
@@ -92,6 +92,28 @@ fn extract_planes_of_both_scans(bencher: Bencher) {
     extract(&mut odometer, &j, &mut current);
     bencher.bench_local(|| {
         extract(&mut odometer, &j, &mut current);
+        black_box(current.planes.len())
+    });
+}
+
+/// As the fusion extracts once the filter knows its vertical: single lines (level floors,
+/// plumb walls) also make planes, at the cost of a pass over the other scan's beams for each
+/// free level line.
+#[divan::bench]
+fn extract_planes_in_a_building(bencher: Bencher) {
+    let (mut odometer, _, j, _) = setup();
+    let reference = body_pose(j.t_ref).inverse();
+    let pose_at = |t: f64| reference * body_pose(t);
+    let vertical = Vertical {
+        down: body_pose(j.t_ref)
+            .rotation
+            .inverse_transform_vector(&Vector3::z()),
+        sigma_rad: 0.002,
+    };
+    let mut current = EpochPlanes::default();
+    let [a, b] = &j.scans;
+    bencher.bench_local(|| {
+        odometer.extract_with_vertical_into([a, b], j.t_ref, &pose_at, vertical, &mut current);
         black_box(current.planes.len())
     });
 }

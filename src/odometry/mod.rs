@@ -419,7 +419,7 @@ const WALL_LINE_MARGIN_M: f64 = 0.02;
 
 /// The filter's downward vertical in body axes at an epoch, with its tilt sigma (rad).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Vertical {
+pub struct Vertical {
     pub down: Vector3<f64>,
     pub sigma_rad: f64,
 }
@@ -503,6 +503,19 @@ impl Odometer {
         out: &mut EpochPlanes,
     ) {
         self.extract_admitted_into(scans, t_ref, pose_at, None, &mut |_| true, out);
+    }
+
+    /// `extract_into` with the filter's vertical known, as the fusion extracts once aligned:
+    /// in a building single lines make planes too (`level_lines`, `wall_lines`).
+    pub fn extract_with_vertical_into(
+        &mut self,
+        scans: [&Scan; 2],
+        t_ref: f64,
+        pose_at: PoseAt<'_>,
+        vertical: Vertical,
+        out: &mut EpochPlanes,
+    ) {
+        self.extract_admitted_into(scans, t_ref, pose_at, Some(vertical), &mut |_| true, out);
     }
 
     /// As `extract_into`, keeping only the planes `admit` accepts: a refused candidate does
