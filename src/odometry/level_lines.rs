@@ -90,21 +90,19 @@ fn level_plane(
         + (reach * parameters.tilt_sigma_rad).powi(2))
     .sqrt();
     let tangent = Matrix3::identity() - normal * normal.transpose();
-    Some(Plane {
-        id: 0,
+    let uncertainty = PlaneUncertainty {
+        normal_covariance: tangent * parameters.tilt_sigma_rad.powi(2),
+        sigma_normal: parameters.tilt_sigma_rad * std::f64::consts::SQRT_2,
+        sigma_rho,
+    };
+    let line_ref = LineRef { scanner, segment };
+    Some(Plane::through_one_line(
+        line_ref,
         normal,
-        rho: depth.abs(),
-        uncertainty: PlaneUncertainty {
-            normal_covariance: tangent * parameters.tilt_sigma_rad.powi(2),
-            sigma_normal: parameters.tilt_sigma_rad * std::f64::consts::SQRT_2,
-            sigma_rho,
-        },
-        lines: [LineRef { scanner, segment }; 2],
-        crossing: false,
-        confirmed: false,
-        extent_m: line.length,
-        normal_assumed: true,
-    })
+        depth.abs(),
+        uncertainty,
+        line.length,
+    ))
 }
 
 /// Whether `scan` has beams in the bearing of `horizontal` (from the body origin, level) and
@@ -138,7 +136,7 @@ mod tests {
     use super::*;
     use crate::odometry::deskew::Beam;
     use crate::odometry::lines::Segment;
-    use nalgebra::{Vector2, Vector3};
+    use crate::odometry::single_line_fixtures::{beam, line};
 
     /// A level floor line 1.5 m below the body origin and 1.8 m ahead, along body y (the
     /// pitched scanner's, scanner 1); scanner 0's beams reach `ahead_m` straight ahead.
@@ -147,33 +145,9 @@ mod tests {
         beams: [Vec<Beam>; 2],
     }
 
-    fn line(centroid: Vector3<f64>, direction: Vector3<f64>) -> Segment {
-        Segment {
-            first: 0,
-            end: 40,
-            centroid_2d: Vector2::zeros(),
-            direction_2d: Vector2::x(),
-            length: 2.0,
-            centroid,
-            direction: direction.normalize(),
-            abscissa_spread: 10.0,
-            scatter: Matrix3::zeros(),
-        }
-    }
-
-    fn beam(body: Vector3<f64>) -> Beam {
-        Beam {
-            planar: Vector2::zeros(),
-            body,
-            direction: body.normalize(),
-            azimuth: 0.0,
-            range: body.norm(),
-        }
-    }
-
     impl Scene {
         fn new(floor_direction: Vector3<f64>, ahead_m: f64) -> Self {
-            let floor = line(Vector3::new(1.8, 0.0, 1.5), floor_direction);
+            let floor = line(Vector3::new(1.8, 0.0, 1.5), floor_direction, 2.0);
             let fan = (-5..=5)
                 .map(|k| beam(Vector3::new(ahead_m, 0.05 * f64::from(k), 0.2)))
                 .collect();

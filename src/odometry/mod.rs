@@ -17,6 +17,8 @@ pub mod lines;
 pub(crate) mod matching;
 pub mod planes;
 pub(crate) mod rotation;
+#[cfg(test)]
+mod single_line_fixtures;
 pub mod synthetic;
 pub(crate) mod uncertainty;
 pub(crate) mod wall_lines;
@@ -251,44 +253,53 @@ impl OdometryConfig {
             .map(|down| Building { down, max_tilt_rad })
     }
 
-    /// How level lines become planes, when they do: only while the filter knows its vertical
-    /// to `LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD`, since it is their normal.
+    /// The building single lines of a kind (`enabled`) may make planes in, with the filter's
+    /// tilt sigma: only while the filter knows its vertical to
+    /// `SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD`, since their normals are set by it, and never with
+    /// `accept_parallel_lines`, which keeps the paper's planes only.
+    fn single_line_building(
+        &self,
+        enabled: bool,
+        vertical: Option<Vertical>,
+    ) -> Option<(Building, f64)> {
+        let known = vertical
+            .filter(|v| v.sigma_rad <= SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD)
+            .filter(|_| enabled && !self.accept_parallel_lines)?;
+        self.building(Some(known.down))
+            .map(|building| (building, known.sigma_rad))
+    }
+
+    /// How level lines become planes, when they do.
     pub(crate) fn level_line_parameters(
         &self,
         vertical: Option<Vertical>,
     ) -> Option<LevelLineParameters> {
-        let enabled = self.level_lines && !self.accept_parallel_lines;
-        let known = vertical.filter(|v| v.sigma_rad <= LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD);
-        self.building(known.map(|v| v.down))
-            .filter(|_| enabled)
-            .map(|building| LevelLineParameters {
-                building,
-                min_depth_m: LEVEL_LINE_MIN_DEPTH_M,
-                wall_margin_m: LEVEL_LINE_WALL_MARGIN_M,
-                bearing_half_width_rad: LEVEL_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
-                tilt_sigma_rad: LEVEL_LINE_TILT_SIGMA_RAD,
-            })
+        let (building, _) = self.single_line_building(self.level_lines, vertical)?;
+        Some(LevelLineParameters {
+            building,
+            min_depth_m: LEVEL_LINE_MIN_DEPTH_M,
+            wall_margin_m: LEVEL_LINE_WALL_MARGIN_M,
+            bearing_half_width_rad: SINGLE_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
+            tilt_sigma_rad: SINGLE_LINE_TILT_SIGMA_RAD,
+        })
     }
 
-    /// How single lines become plumb planes, when they do: only while the filter knows its
-    /// vertical to `LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD`, since the normal is square to it.
+    /// How single lines become plumb planes, when they do.
     pub(crate) fn wall_line_parameters(
         &self,
         vertical: Option<Vertical>,
     ) -> Option<WallLineParameters> {
-        let enabled = self.wall_lines && !self.accept_parallel_lines;
-        let known = vertical.filter(|v| v.sigma_rad <= LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD);
-        self.building(known.map(|v| v.down))
-            .filter(|_| enabled)
-            .map(|building| WallLineParameters {
-                building,
-                max_slope_rad: WALL_LINE_MAX_SLOPE_DEG.to_radians(),
-                min_level_length_m: WALL_LINE_MIN_LEVEL_LENGTH_M,
-                margin_m: WALL_LINE_MARGIN_M,
-                vertical_sigma_rad: known.map_or(0.0, |v| v.sigma_rad),
-                bearing_half_width_rad: LEVEL_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
-                tilt_sigma_rad: LEVEL_LINE_TILT_SIGMA_RAD,
-            })
+        let (building, vertical_sigma_rad) =
+            self.single_line_building(self.wall_lines, vertical)?;
+        Some(WallLineParameters {
+            building,
+            max_slope_rad: WALL_LINE_MAX_SLOPE_DEG.to_radians(),
+            min_level_length_m: WALL_LINE_MIN_LEVEL_LENGTH_M,
+            margin_m: WALL_LINE_MARGIN_M,
+            vertical_sigma_rad,
+            bearing_half_width_rad: SINGLE_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
+            tilt_sigma_rad: SINGLE_LINE_TILT_SIGMA_RAD,
+        })
     }
 
     /// Plane-extraction parameters, given the downward vertical in body axes when the filter
@@ -398,15 +409,15 @@ const LEVEL_LINE_MIN_DEPTH_M: f64 = 0.3;
 /// to be on a wall: a few times the ranging noise and a wall's skirting.
 const LEVEL_LINE_WALL_MARGIN_M: f64 = 0.3;
 /// The bearing in which the other scanner's beams are looked for, half-width in degrees.
-const LEVEL_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
-/// How far the filter's vertical and a building's floor may be from level together, rad: the
-/// level plane's normal sigma (a converged tilt is good to a milliradian or two, a floor to a
-/// few over the few metres seen).
-const LEVEL_LINE_TILT_SIGMA_RAD: f64 = 0.003;
-/// Level lines make planes only while the filter's tilt sigma is at most this, rad: just after
+const SINGLE_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
+/// How far the filter's vertical and a building's floor or wall may be from level or plumb
+/// together, rad: a single-line plane's tilt sigma about its line (a converged tilt is good to
+/// a milliradian or two, a floor or a wall to a few over the few metres seen).
+const SINGLE_LINE_TILT_SIGMA_RAD: f64 = 0.003;
+/// Single lines make planes only while the filter's tilt sigma is at most this, rad: just after
 /// a start in motion the vertical is known to degrees, and each correction would move a level
 /// plane's distance by the line's reach times the turn.
-const LEVEL_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.01;
+const SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.01;
 
 /// Single lines steeper than this, degrees from level, make no plumb plane.
 const WALL_LINE_MAX_SLOPE_DEG: f64 = 60.0;

@@ -99,6 +99,29 @@ pub struct Plane {
     /// one line, `level_lines`): it tells the displacement along it, and nothing of a rotation.
     pub normal_assumed: bool,
 }
+impl Plane {
+    /// A plane through one line whose normal a building sets, not a measurement
+    /// (`level_lines`, `wall_lines`): numbered when it is pushed.
+    pub(crate) fn through_one_line(
+        line: LineRef,
+        normal: Vector3<f64>,
+        rho: f64,
+        uncertainty: PlaneUncertainty,
+        extent_m: f64,
+    ) -> Self {
+        Self {
+            id: 0,
+            normal,
+            rho,
+            uncertainty,
+            lines: [line; 2],
+            crossing: false,
+            confirmed: false,
+            extent_m,
+            normal_assumed: true,
+        }
+    }
+}
 
 /// The lines of one scan with the beams they index and the scanner's ranging sigma.
 #[derive(Debug, Clone, Copy)]

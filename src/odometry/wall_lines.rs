@@ -109,21 +109,19 @@ fn wall_plane(
     .sqrt();
     let normal_covariance = tilt * tilt.transpose() * tilt_sigma.powi(2)
         + heading * heading.transpose() * heading_sigma.powi(2);
-    Some(Plane {
-        id: 0,
+    let uncertainty = PlaneUncertainty {
+        normal_covariance,
+        sigma_normal: normal_covariance.trace().sqrt(),
+        sigma_rho,
+    };
+    let line_ref = LineRef { scanner, segment };
+    Some(Plane::through_one_line(
+        line_ref,
         normal,
         rho,
-        uncertainty: PlaneUncertainty {
-            normal_covariance,
-            sigma_normal: normal_covariance.trace().sqrt(),
-            sigma_rho,
-        },
-        lines: [LineRef { scanner, segment }; 2],
-        crossing: false,
-        confirmed: false,
-        extent_m: line.length,
-        normal_assumed: true,
-    })
+        uncertainty,
+        line.length,
+    ))
 }
 
 /// Whether a level line is long enough for a wall and every beam of the other scanner in its
@@ -175,31 +173,8 @@ mod tests {
     use super::*;
     use crate::odometry::deskew::Beam;
     use crate::odometry::lines::Segment;
-    use nalgebra::{Matrix3, Vector2, Vector3};
-
-    fn line(centroid: Vector3<f64>, direction: Vector3<f64>, length: f64) -> Segment {
-        Segment {
-            first: 0,
-            end: 40,
-            centroid_2d: Vector2::zeros(),
-            direction_2d: Vector2::x(),
-            length,
-            centroid,
-            direction: direction.normalize(),
-            abscissa_spread: 10.0,
-            scatter: Matrix3::zeros(),
-        }
-    }
-
-    fn beam(body: Vector3<f64>) -> Beam {
-        Beam {
-            planar: Vector2::zeros(),
-            body,
-            direction: body.normalize(),
-            azimuth: 0.0,
-            range: body.norm(),
-        }
-    }
+    use crate::odometry::single_line_fixtures::{beam, line};
+    use nalgebra::Vector3;
 
     /// Scanner 0 lays `seen` (down is +z); scanner 1's beams end at `other_end` straight ahead.
     fn planes(seen: Segment, other_end: Option<Vector3<f64>>) -> Vec<Plane> {
