@@ -16,6 +16,7 @@
 //! it tells the displacement along the normal and nothing about the rotation
 //! (`Plane::normal_assumed`).
 
+use super::lines::Segment;
 use super::planes::{Building, LineRef, Plane, ScanLines};
 use super::uncertainty::PlaneUncertainty;
 
@@ -50,9 +51,14 @@ pub(crate) fn wall_planes(
     admit: &mut dyn FnMut(&Plane) -> bool,
     out: &mut Vec<Plane>,
 ) {
+    let measured = out.len();
     for (scanner, scan) in scans.iter().enumerate() {
         for segment in 0..scan.segments.len() {
             if used[scanner].get(segment).copied().unwrap_or(true) {
+                continue;
+            }
+            let line = &scan.segments[segment];
+            if out[..measured].iter().any(|plane| carries(plane, line)) {
                 continue;
             }
             let Some(mut plane) = wall_plane(scans, scanner, segment, parameters) else {
@@ -66,6 +72,20 @@ pub(crate) fn wall_planes(
         }
     }
 }
+
+/// Whether a plane of the epoch already holds `line`: a surface that a pair measured gains
+/// little from an assumed plane through another of its lines, and the two share the surface's
+/// unevenness and the scan's deskew, which their sigmas would count twice.
+fn carries(plane: &Plane, line: &Segment) -> bool {
+    !plane.normal_assumed
+        && plane.normal.dot(&line.direction).abs() <= CARRIED_LINE_MAX_TILT_RAD.sin()
+        && (plane.normal.dot(&line.centroid) - plane.rho).abs() <= CARRIED_LINE_MAX_OFFSET_M
+}
+
+/// A line within this of a plane's direction (rad) and of its distance (m) lies on it: a
+/// few of a plane's sigmas, well short of what tells two walls apart.
+const CARRIED_LINE_MAX_TILT_RAD: f64 = 0.03;
+const CARRIED_LINE_MAX_OFFSET_M: f64 = 0.05;
 
 fn wall_plane(
     scans: &[ScanLines; 2],
@@ -174,10 +194,19 @@ mod tests {
     use crate::odometry::deskew::Beam;
     use crate::odometry::lines::Segment;
     use crate::odometry::single_line_fixtures::{beam, line};
-    use nalgebra::Vector3;
+    use nalgebra::{Matrix3, Vector3};
 
     /// Scanner 0 lays `seen` (down is +z); scanner 1's beams end at `other_end` straight ahead.
     fn planes(seen: Segment, other_end: Option<Vector3<f64>>) -> Vec<Plane> {
+        planes_beside(Vec::new(), seen, other_end)
+    }
+
+    /// As `planes`, with `measured` the planes the epoch's pairs made; returns the new ones.
+    fn planes_beside(
+        measured: Vec<Plane>,
+        seen: Segment,
+        other_end: Option<Vector3<f64>>,
+    ) -> Vec<Plane> {
         let segments = [vec![seen], Vec::new()];
         let fan: Vec<Beam> = other_end
             .into_iter()
@@ -202,10 +231,39 @@ mod tests {
             bearing_half_width_rad: 10f64.to_radians(),
             tilt_sigma_rad: 0.003,
         };
-        let mut out = Vec::new();
+        let mut out = measured;
+        let before = out.len();
         wall_planes(&scans, &mut used, &parameters, &mut |_| true, &mut out);
-        assert_eq!(used[0][0], !out.is_empty());
-        out
+        assert_eq!(used[0][0], out.len() > before);
+        out.split_off(before)
+    }
+
+    /// A pair's plane: normal y at `rho`.
+    fn measured_wall(rho: f64) -> Plane {
+        let uncertainty = PlaneUncertainty {
+            normal_covariance: Matrix3::identity() * 1e-6,
+            sigma_normal: 1e-3,
+            sigma_rho: 1e-3,
+        };
+        let line = LineRef {
+            scanner: 1,
+            segment: 0,
+        };
+        Plane {
+            normal_assumed: false,
+            ..Plane::through_one_line(line, Vector3::y(), rho, uncertainty, 2.0)
+        }
+    }
+
+    #[test]
+    fn a_line_on_a_surface_a_pair_measured_makes_no_second_plane() {
+        let slope = Vector3::new(1.0, 0.0, 10f64.to_radians().tan());
+        let side_wall = || line(Vector3::new(1.0, 3.0, 0.2), slope, 2.0);
+        assert!(planes_beside(vec![measured_wall(3.02)], side_wall(), None).is_empty());
+        assert_eq!(
+            planes_beside(vec![measured_wall(5.0)], side_wall(), None).len(),
+            1
+        );
     }
 
     #[test]
