@@ -354,7 +354,7 @@ fn study(name: &str, rig: Rig, epoch_rate_hz: f64, single: SingleLines) {
     );
     // The premise of issue 18: with scan-to-scan pairs these scenes leave a displacement axis
     // unobserved in most epochs. When this fails, the scenes or the odometer changed and
-    // docs/accuracy.md's baseline is stale. (Level lines observe the vertical: not with them.)
+    // docs/accuracy.md's baseline is stale. (Single-line planes observe more: not with them.)
     let unobserved_share = mean(runs.iter().map(|r| r.unobserved_share));
     assert!(
         single != PAIRS_ONLY || unobserved_share >= 0.8,
@@ -397,7 +397,7 @@ fn baseline_open_room() {
     study_scene("open-room", PAIRS_ONLY);
 }
 
-/// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
+/// The same with `odometry.level_lines` alone (docs/accuracy.md, "Level lines").
 #[test]
 #[ignore]
 fn level_lines_open_room() {
@@ -410,7 +410,7 @@ fn baseline_hall_walk() {
     study_scene("hall-walk", PAIRS_ONLY);
 }
 
-/// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
+/// The same with `odometry.level_lines` alone (docs/accuracy.md, "Level lines").
 #[test]
 #[ignore]
 fn level_lines_hall_walk() {
@@ -423,7 +423,7 @@ fn baseline_bare_corridor() {
     study_scene("bare-corridor", PAIRS_ONLY);
 }
 
-/// The same with `odometry.level_lines` (off by default, docs/accuracy.md "Level lines").
+/// The same with `odometry.level_lines` alone (docs/accuracy.md, "Level lines").
 #[test]
 #[ignore]
 fn level_lines_bare_corridor() {

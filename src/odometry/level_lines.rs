@@ -36,10 +36,11 @@ pub(crate) struct LevelLineParameters {
 
 /// Appends to `out` a level plane for each line not in `used` that is level, below or above
 /// the body origin by `min_depth_m` or more, and overshot by every other scanner's beams in its
-/// bearing; `admit` may refuse it (the keyframe's confirmation).
+/// bearing; `admit` may refuse it (the keyframe's confirmation). Marks the lines it takes in
+/// `used`.
 pub(crate) fn level_planes(
     scans: &[ScanLines; 2],
-    used: &[Vec<bool>; 2],
+    used: &mut [Vec<bool>; 2],
     parameters: &LevelLineParameters,
     admit: &mut dyn FnMut(&Plane) -> bool,
     out: &mut Vec<Plane>,
@@ -54,6 +55,7 @@ pub(crate) fn level_planes(
             };
             plane.id = out.len();
             if line.points() >= 2 && admit(&plane) {
+                used[scanner][segment] = true;
                 out.push(plane);
             }
         }
@@ -95,9 +97,8 @@ fn level_plane(
         sigma_normal: parameters.tilt_sigma_rad * std::f64::consts::SQRT_2,
         sigma_rho,
     };
-    let line_ref = LineRef { scanner, segment };
     Some(Plane::through_one_line(
-        line_ref,
+        LineRef { scanner, segment },
         normal,
         depth.abs(),
         uncertainty,
@@ -114,15 +115,10 @@ fn overshot(
     reach: f64,
     parameters: &LevelLineParameters,
 ) -> bool {
-    let bearing = horizontal / reach;
-    let within = parameters.bearing_half_width_rad.cos();
     let mut seen = false;
-    for beam in scan.beams {
-        let level = beam.body - down * beam.body.dot(down);
-        let distance = level.norm();
-        if distance <= f64::EPSILON || level.dot(&bearing) < within * distance {
-            continue;
-        }
+    for (distance, _) in
+        scan.beams_in_bearing(*down, horizontal / reach, parameters.bearing_half_width_rad)
+    {
         if distance < reach + parameters.wall_margin_m {
             return false;
         }
@@ -163,7 +159,7 @@ mod tests {
                 beams: &self.beams[k],
                 range_sigma: 0.01,
             });
-            let used = [vec![false; 0], vec![false; 1]];
+            let mut used = [vec![false; 0], vec![false; 1]];
             let parameters = LevelLineParameters {
                 building: Building {
                     down: Vector3::z(),
@@ -175,7 +171,7 @@ mod tests {
                 tilt_sigma_rad: 0.003,
             };
             let mut out = Vec::new();
-            level_planes(&scans, &used, &parameters, &mut |_| true, &mut out);
+            level_planes(&scans, &mut used, &parameters, &mut |_| true, &mut out);
             out
         }
     }

@@ -586,20 +586,13 @@ impl Odometer {
             self.paired[line.scanner][line.segment] = true;
         }
         if let Some(parameters) = level {
-            let first_level = out.planes.len();
             level_planes(
                 &scan_lines,
-                &self.paired,
+                &mut self.paired,
                 &parameters,
                 admit,
                 &mut out.planes,
             );
-            for line in out.planes[first_level..]
-                .iter()
-                .flat_map(|plane| plane.lines)
-            {
-                self.paired[line.scanner][line.segment] = true;
-            }
         }
         if let Some(parameters) = walls {
             wall_planes(

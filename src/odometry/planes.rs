@@ -99,6 +99,7 @@ pub struct Plane {
     /// one line, `level_lines`): it tells the displacement along it, and nothing of a rotation.
     pub normal_assumed: bool,
 }
+
 impl Plane {
     /// A plane through one line whose normal a building sets, not a measurement
     /// (`level_lines`, `wall_lines`): numbered when it is pushed.
@@ -132,6 +133,25 @@ pub(crate) struct ScanLines<'a> {
 }
 
 impl<'a> ScanLines<'a> {
+    /// The beams within `half_width_rad` of the level unit `bearing` from the body origin, as
+    /// (level distance, depth along `down`): what the scan meets in that bearing, which tells
+    /// a single line's surface (`level_lines`, `wall_lines`).
+    pub(crate) fn beams_in_bearing(
+        &self,
+        down: Vector3<f64>,
+        bearing: Vector3<f64>,
+        half_width_rad: f64,
+    ) -> impl Iterator<Item = (f64, f64)> + 'a {
+        let within = half_width_rad.cos();
+        self.beams.iter().filter_map(move |beam| {
+            let depth = beam.body.dot(&down);
+            let level = beam.body - down * depth;
+            let distance = level.norm();
+            (distance > f64::EPSILON && level.dot(&bearing) >= within * distance)
+                .then_some((distance, depth))
+        })
+    }
+
     fn sample(&self, segment: usize) -> LineSample<'a> {
         LineSample {
             segment: &self.segments[segment],

@@ -122,7 +122,7 @@ fn wall_plane(
     let heading_sigma = range_sigma / line.abscissa_spread.sqrt() / level_share;
     let tilt = line.direction.cross(&normal);
     let heading = down.cross(&normal);
-    let (tilt_sigma, heading_sigma) = (parameters.tilt_sigma_rad, heading_sigma);
+    let tilt_sigma = parameters.tilt_sigma_rad;
     let sigma_rho = ((range_sigma * range_sigma) / line.points() as f64
         + (tilt.dot(&line.centroid) * tilt_sigma).powi(2)
         + (heading.dot(&line.centroid) * heading_sigma).powi(2))
@@ -134,9 +134,8 @@ fn wall_plane(
         sigma_normal: normal_covariance.trace().sqrt(),
         sigma_rho,
     };
-    let line_ref = LineRef { scanner, segment };
     Some(Plane::through_one_line(
-        line_ref,
+        LineRef { scanner, segment },
         normal,
         rho,
         uncertainty,
@@ -165,20 +164,16 @@ fn stands_clear_of_the_other_scan(
     if reach <= f64::EPSILON {
         return false;
     }
-    let bearing = horizontal / reach;
-    let within = parameters.bearing_half_width_rad.cos();
     let clearance = 3.0
         * parameters
             .margin_m
             .hypot(reach * parameters.vertical_sigma_rad);
     let mut seen = false;
-    for beam in scans[1 - scanner].beams {
-        let beam_depth = beam.body.dot(&down);
-        let level = beam.body - down * beam_depth;
-        let distance = level.norm();
-        if distance <= f64::EPSILON || level.dot(&bearing) < within * distance {
-            continue;
-        }
+    for (distance, beam_depth) in scans[1 - scanner].beams_in_bearing(
+        down,
+        horizontal / reach,
+        parameters.bearing_half_width_rad,
+    ) {
         let beyond = (beam_depth - depth) * depth.signum();
         if distance > reach + parameters.margin_m || beyond < clearance {
             return false;
