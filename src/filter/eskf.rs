@@ -23,10 +23,13 @@ use crate::config::ConfigErrors;
 use crate::estimate::Estimate;
 use crate::sensors::ImuSample;
 
+mod level_update;
 mod pose_prior;
 mod relative_pose_update;
 mod speed_prior;
 mod zero_motion_update;
+
+pub use level_update::LevelDirection;
 
 /// Most covariance steps taken to bridge one IMU gap.
 const MAX_GAP_STEPS: f64 = 1000.0;
@@ -116,6 +119,7 @@ pub enum UpdateKind {
     RelativePoseVelocity,
     ZeroMotion,
     SpeedPrior,
+    LevelDirections,
 }
 
 /// Outcome of one measurement update.

@@ -30,7 +30,7 @@ pub(crate) mod update;
 pub use config::{FilterConfig, RelativePoseUpdate};
 pub(crate) use consistency::chi_square_quantile;
 pub use consistency::mean_nees_interval;
-pub use eskf::Eskf;
+pub use eskf::{Eskf, LevelDirection};
 pub(crate) use eskf::{FilterPhase, ImuOutcome, ResetReason, UpdateReport};
 pub(crate) use history::Pose;
 pub use relative_pose::{

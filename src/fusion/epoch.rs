@@ -68,6 +68,7 @@ impl Fusion {
             record.t_previous = Some(reference.planes.t_ref);
             noise_maps = self.solve_and_fuse(reference, &current, &mut record);
         }
+        record.level_surfaces = self.level_from_building(&current.planes);
         if self.config.confirms_planes() {
             let (baseline, tolerance) = self.confirmation_baseline();
             self.recent.remember(&current, baseline, tolerance);
@@ -485,6 +486,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         rotation: None,
         displacement: None,
         update: None,
+        level_surfaces: Vec::new(),
     }
 }
 

@@ -8,6 +8,7 @@
 //! the relative pose against the clone of the pose at the previous epoch.
 
 mod anchor;
+mod building_vertical;
 pub(crate) mod clock;
 pub(crate) mod config;
 mod confirmation;

@@ -141,4 +141,7 @@ pub struct EpochRecord {
     /// Body j's origin in body-i axes, m, with its covariance.
     pub displacement: Option<WithCovariance>,
     pub update: Option<UpdateSummary>,
+    /// The filter's verdict on each floor or ceiling fused as the vertical, when it had lost
+    /// it (`fusion/building_vertical.rs`).
+    pub level_surfaces: Vec<UpdateSummary>,
 }

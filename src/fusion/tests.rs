@@ -342,3 +342,46 @@ fn planes_wait_for_confirmation_a_baseline_back_above_one_hertz() {
     assert!(records.iter().any(|r| r.used > 0));
     assert!(records.iter().all(|r| r.unconfirmed_planes == 0));
 }
+
+/// Started 20.4 s into hallway-flight, in motion: the accelerometer's mean gives the tilt to
+/// degrees (here 29 mrad off in pitch, and gravity would leak 0.3 m/s^2 into the velocity along
+/// the hallway, which nothing observes). The floor, level in a
+/// building, gives it back within the first epochs, to a few milliradians and honestly.
+#[test]
+fn a_start_in_motion_takes_its_tilt_from_the_floor() {
+    let start_s = 20.4;
+    let mut scenario = Scenario::builtin("hallway-flight").unwrap();
+    scenario.duration_s = start_s + 4.0;
+    let mut simulator = Simulator::with_seed(&scenario, 101).unwrap();
+    let mut settings = FusionSettings::default();
+    settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
+    let mut level_surfaces = Vec::new();
+    while let Some(event) = simulator.next_event() {
+        match event {
+            SimEvent::Imu(sample) if sample.time() >= start_s => {
+                fusion.push_imu(sample);
+            }
+            SimEvent::Scan { scan, .. } if scan.t0 >= start_s => {
+                if let Some(record) = fusion.push_scan(scan) {
+                    level_surfaces.extend(record.level_surfaces);
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(
+        level_surfaces.iter().any(|u| u.accepted && u.dof == 2),
+        "{level_surfaces:?}"
+    );
+    let filter = fusion.filter();
+    let truth = scenario.trajectory.kinematics(filter.time().unwrap());
+    let error = (truth.q * filter.state().q.inverse()).scaled_axis();
+    let tilt_error = error.xy().norm();
+    assert!(tilt_error < 0.005, "tilt error {tilt_error} rad");
+    assert!(
+        tilt_error < 3.0 * filter.tilt_sigma() * std::f64::consts::SQRT_2,
+        "tilt error {tilt_error} rad, sigma {}",
+        filter.tilt_sigma()
+    );
+}
