@@ -36,6 +36,9 @@ impl Fusion {
     /// axes the filter has lost, if the scene is a building: one surface at a time, best first,
     /// so that the gate refuses one that is not level after all without its fellows.
     pub(super) fn level_from_building(&mut self, planes: &[Plane]) -> Vec<UpdateSummary> {
+        if self.filter.largest_tilt_sigma() <= RELIABLE_TILT_SIGMA_RAD {
+            return Vec::new();
+        }
         let down = self
             .filter
             .state()

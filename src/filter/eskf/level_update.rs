@@ -1,7 +1,7 @@
 //! A building's level surfaces as a measurement of the vertical: a body direction that lies in
 //! a level floor or ceiling is square to gravity.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix2, Matrix3, Vector3};
 
 use super::{Eskf, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::state::ATT;
@@ -22,6 +22,13 @@ impl Eskf {
         let h = self.level_jacobian(body);
         let attitude: Matrix3<f64> = self.covariance.fixed_view::<3, 3>(ATT, ATT).into();
         (h.transpose() * attitude * h).x.max(0.0).sqrt()
+    }
+
+    /// The sigma, rad, of the filter's tilt about the horizontal axis it knows worst: no level
+    /// direction measures more.
+    pub(crate) fn largest_tilt_sigma(&self) -> f64 {
+        let tilt: Matrix2<f64> = self.covariance.fixed_view::<2, 2>(ATT, ATT).into();
+        tilt.symmetric_eigenvalues().max().max(0.0).sqrt()
     }
 
     /// Fuses `direction . down = 0` for up to three level directions of one surface; the gate
