@@ -254,16 +254,17 @@ impl OdometryConfig {
     }
 
     /// The building single lines of a kind (`enabled`) may make planes in, with the filter's
-    /// tilt sigma: only while the filter knows its vertical to
-    /// `SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD`, since their normals are set by it, and never with
-    /// `accept_parallel_lines`, which keeps the paper's planes only.
+    /// tilt sigma: only while the filter knows its vertical to `max_vertical_sigma_rad`, since
+    /// their normals are set by it, and never with `accept_parallel_lines`, which keeps the
+    /// paper's planes only.
     fn single_line_building(
         &self,
         enabled: bool,
         vertical: Option<Vertical>,
+        max_vertical_sigma_rad: f64,
     ) -> Option<(Building, f64)> {
         let known = vertical
-            .filter(|v| v.sigma_rad <= SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD)
+            .filter(|v| v.sigma_rad <= max_vertical_sigma_rad)
             .filter(|_| enabled && !self.accept_parallel_lines)?;
         self.building(Some(known.down))
             .map(|building| (building, known.sigma_rad))
@@ -274,7 +275,11 @@ impl OdometryConfig {
         &self,
         vertical: Option<Vertical>,
     ) -> Option<LevelLineParameters> {
-        let (building, _) = self.single_line_building(self.level_lines, vertical)?;
+        let (building, _) = self.single_line_building(
+            self.level_lines,
+            vertical,
+            SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD,
+        )?;
         Some(LevelLineParameters {
             building,
             min_depth_m: LEVEL_LINE_MIN_DEPTH_M,
@@ -289,8 +294,9 @@ impl OdometryConfig {
         &self,
         vertical: Option<Vertical>,
     ) -> Option<WallLineParameters> {
-        let (building, vertical_sigma_rad) =
-            self.single_line_building(self.wall_lines, vertical)?;
+        let (mut building, vertical_sigma_rad) =
+            self.single_line_building(self.wall_lines, vertical, WALL_LINE_MAX_VERTICAL_SIGMA_RAD)?;
+        building.max_tilt_rad += 3.0 * vertical_sigma_rad;
         Some(WallLineParameters {
             building,
             max_slope_rad: WALL_LINE_MAX_SLOPE_DEG.to_radians(),
@@ -298,7 +304,7 @@ impl OdometryConfig {
             margin_m: WALL_LINE_MARGIN_M,
             vertical_sigma_rad,
             bearing_half_width_rad: SINGLE_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
-            tilt_sigma_rad: SINGLE_LINE_TILT_SIGMA_RAD,
+            tilt_sigma_rad: SINGLE_LINE_TILT_SIGMA_RAD.hypot(vertical_sigma_rad),
         })
     }
 
@@ -414,10 +420,19 @@ const SINGLE_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
 /// together, rad: a single-line plane's tilt sigma about its line (a converged tilt is good to
 /// a milliradian or two, a floor or a wall to a few over the few metres seen).
 const SINGLE_LINE_TILT_SIGMA_RAD: f64 = 0.003;
-/// Single lines make planes only while the filter's tilt sigma is at most this, rad: just after
+/// Level lines make planes only while the filter's tilt sigma is at most this, rad: just after
 /// a start in motion the vertical is known to degrees, and each correction would move a level
 /// plane's distance by the line's reach times the turn.
 const SINGLE_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.01;
+
+/// Wall lines make planes while the filter's tilt sigma is at most this, rad: a start in
+/// motion's (3 degrees). A plumb plane's normal is level and square to its line, so the
+/// vertical's error only tips it about the line, which moves the distance by the line's height
+/// over the body times the error: its covariance carries that, and the level test that tells a
+/// wall's level line from a sloping one is widened by three sigmas of it. Held to 10 mrad like
+/// level lines, the open room and the corridor started in motion had no plane along them
+/// until the tilt converged, and the tilt converged only through that motion.
+const WALL_LINE_MAX_VERTICAL_SIGMA_RAD: f64 = 0.06;
 
 /// Single lines steeper than this, degrees from level, make no plumb plane.
 const WALL_LINE_MAX_SLOPE_DEG: f64 = 60.0;

@@ -872,3 +872,24 @@ fn config_defaults_roundtrip_and_unknown_keys_are_refused() {
         "{message}"
     );
 }
+
+/// Wall lines are made while the filter's vertical is as vague as a start in motion leaves it,
+/// and their planes carry that vagueness; level lines, whose normal is the vertical itself,
+/// wait until it is known to 10 mrad.
+#[test]
+fn wall_lines_take_a_vague_vertical_into_their_planes_and_level_lines_wait_for_a_known_one() {
+    let config = OdometryConfig::default();
+    let vertical = |sigma_rad: f64| {
+        Some(Vertical {
+            down: Vector3::z(),
+            sigma_rad,
+        })
+    };
+    let walls = config.wall_line_parameters(vertical(0.05)).unwrap();
+    assert!((walls.tilt_sigma_rad - 0.003f64.hypot(0.05)).abs() < 1e-12);
+    let building = config.building_max_tilt_deg.to_radians();
+    assert!((walls.building.max_tilt_rad - (building + 0.15)).abs() < 1e-12);
+    assert!(config.level_line_parameters(vertical(0.05)).is_none());
+    assert!(config.level_line_parameters(vertical(0.01)).is_some());
+    assert!(config.wall_line_parameters(vertical(0.07)).is_none());
+}
