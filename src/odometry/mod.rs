@@ -73,7 +73,9 @@ pub struct OdometryConfig {
     /// if it is one or the other: its lines cannot show that they lie on one surface, and the
     /// fictitious planes they make in a building join a wall line to a floor or ceiling line,
     /// so they lean between the two. And a level plane may be the only one facing a direction
-    /// (`[integrity] lone_plane_*`): floors do not walk. 90 says the scene is not a building.
+    /// (`[integrity] lone_plane_*`): floors do not walk. A measured floor or ceiling gives a
+    /// filter that lost its vertical its tilt back (`fusion/building_vertical.rs`). 90 says the
+    /// scene is not a building.
     pub building_max_tilt_deg: f64,
     /// In a building, a level line that the other scanner's beams overshoot in its bearing
     /// also makes a plane, level through the line (a floor, a table top), which observes the
