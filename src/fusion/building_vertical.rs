@@ -20,6 +20,7 @@ use super::record::UpdateSummary;
 use super::Fusion;
 use crate::filter::LevelDirection;
 use crate::odometry::planes::{Building, Plane};
+use crate::odometry::tangent_basis;
 
 /// How far a building's floors and ceilings are from level (rad, one sigma): a few millimetres
 /// over a metre.
@@ -27,9 +28,6 @@ const LEVEL_SIGMA_RAD: f64 = 0.003;
 /// The filter's tilt sigma about an axis (rad) above which a level surface measures it: the
 /// surface then holds it to about its own level sigma.
 const RELIABLE_TILT_SIGMA_RAD: f64 = 0.005;
-/// How many sigmas of the filter's tilt widen the building's tolerance when a plane is judged
-/// level: the filter's vertical is off by up to that.
-const TILT_SIGMAS: f64 = 3.0;
 
 impl Fusion {
     /// Fuses the level directions of the epoch's measured floors and ceilings along the tilt
@@ -44,10 +42,10 @@ impl Fusion {
             .state()
             .q
             .inverse_transform_vector(&Vector3::z());
-        let Some(mut building) = self.odometer.config().building(Some(down)) else {
+        let Some(building) = self.odometer.config().building(Some(down)) else {
             return Vec::new();
         };
-        building.max_tilt_rad += TILT_SIGMAS * self.filter.tilt_sigma();
+        let building = building.judged_by(self.filter.tilt_sigma());
         let mut surfaces: Vec<[LevelDirection; 2]> = planes
             .iter()
             .filter(|plane| plane.crossing && !plane.normal_assumed)
@@ -75,28 +73,22 @@ impl Fusion {
 
 /// The two body directions a level plane holds level, if the building takes it for a floor or
 /// a ceiling, each with the variance of its sine against the true vertical: the plane's normal
-/// error along it and the building's.
+/// error along it and the building's. They are the principal axes of the normal's error within
+/// the plane, so that their noises are independent.
 fn level_directions(plane: &Plane, building: &Building) -> Option<[LevelDirection; 2]> {
-    let normal = plane.normal;
-    if !building.is_level(&normal) {
+    if !building.is_level(&plane.normal) {
         return None;
     }
-    let covariance = plane.uncertainty.normal_covariance;
-    // A tilt of the normal along `body` moves `body . down` by as much.
-    let direction = |body: Vector3<f64>| LevelDirection {
-        body,
-        variance: (body.transpose() * covariance * body).x + LEVEL_SIGMA_RAD * LEVEL_SIGMA_RAD,
-    };
-    let first = normal.cross(&least_aligned_axis(&normal)).normalize();
-    let second = normal.cross(&first);
-    Some([direction(first), direction(second)])
+    let tangents = tangent_basis(&plane.normal);
+    // A tilt of the normal along a tangent moves `tangent . down` by as much.
+    let error =
+        (tangents.transpose() * plane.uncertainty.normal_covariance * tangents).symmetric_eigen();
+    Some([0, 1].map(|k| LevelDirection {
+        body: tangents * error.eigenvectors.column(k),
+        variance: error.eigenvalues[k].max(0.0) + LEVEL_SIGMA_RAD * LEVEL_SIGMA_RAD,
+    }))
 }
 
 fn best_variance(surface: &[LevelDirection; 2]) -> f64 {
     surface[0].variance.min(surface[1].variance)
-}
-
-/// The coordinate axis furthest from `v`, for a cross product that cannot vanish.
-fn least_aligned_axis(v: &Vector3<f64>) -> Vector3<f64> {
-    Vector3::ith(v.iamin(), 1.0)
 }

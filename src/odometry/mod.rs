@@ -296,11 +296,10 @@ impl OdometryConfig {
         &self,
         vertical: Option<Vertical>,
     ) -> Option<WallLineParameters> {
-        let (mut building, vertical_sigma_rad) =
+        let (building, vertical_sigma_rad) =
             self.single_line_building(self.wall_lines, vertical, WALL_LINE_MAX_VERTICAL_SIGMA_RAD)?;
-        building.max_tilt_rad += 3.0 * vertical_sigma_rad;
         Some(WallLineParameters {
-            building,
+            building: building.judged_by(vertical_sigma_rad),
             max_slope_rad: WALL_LINE_MAX_SLOPE_DEG.to_radians(),
             min_level_length_m: WALL_LINE_MIN_LEVEL_LENGTH_M,
             margin_m: WALL_LINE_MARGIN_M,

@@ -58,6 +58,15 @@ pub(crate) struct Building {
 }
 
 impl Building {
+    /// The building as judged by a vertical known to `sigma_rad`: a floor or a wall may look
+    /// tipped by up to three of its sigmas more.
+    pub(crate) fn judged_by(self, sigma_rad: f64) -> Self {
+        Self {
+            max_tilt_rad: self.max_tilt_rad + 3.0 * sigma_rad,
+            ..self
+        }
+    }
+
     pub(crate) fn is_level(&self, normal: &Vector3<f64>) -> bool {
         normal.dot(&self.down).abs() >= self.max_tilt_rad.cos()
     }

@@ -50,13 +50,13 @@ impl Eskf {
                 .fixed_view_mut::<1, 3>(k, ATT)
                 .copy_from(&self.level_jacobian(&direction.body).transpose());
         }
-        let unused: Vec<Vector3<f64>> = (rows..3).map(|k| Vector3::ith(k, 1.0)).collect();
+        let unused = [Vector3::x(), Vector3::y(), Vector3::z()];
         let mut stacked = Stacked::default();
         stacked.push(
             &innovation,
             &jacobian,
             &noise,
-            &Observability::from_unobservable(&unused),
+            &Observability::from_unobservable(&unused[rows..]),
         );
         self.fuse(&stacked, UpdateKind::LevelDirections, t)
     }
