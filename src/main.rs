@@ -70,7 +70,8 @@ enum Command {
     /// driver's emulator exactly as a live run records it, with /truth.
     Simulate {
         /// A built-in scenario (paper-sim, office-door, hallway-hover, hallway-flight,
-        /// bare-corridor, open-room, hall-walk) or a scenario file like those in data/scenarios.
+        /// bare-corridor, open-room, hall-walk, or random-room-N: a room drawn from seed N) or a
+        /// scenario file like those in data/scenarios.
         #[arg(long, value_name = "NAME|FILE")]
         scenario: String,
         /// The recording to write.

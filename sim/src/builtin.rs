@@ -130,12 +130,12 @@ pub(crate) fn paper_sim(bias: PaperBias) -> Scenario {
 }
 
 /// Rounds away binary noise such as 0.7999999999999999 so the scenario files read cleanly.
-fn tidy<const N: usize>(values: [f64; N]) -> [f64; N] {
+pub(crate) fn tidy<const N: usize>(values: [f64; N]) -> [f64; N] {
     values.map(|v| (v * 1e9).round() / 1e9)
 }
 
 /// Vertical wall patch from `(x0, y0)` to `(x1, y1)` between heights `z_top` and `z_bottom`.
-fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
+pub(crate) fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
     let along = Vector3::new(to[0] - from[0], to[1] - from[1], 0.0);
     Patch::new(
         name,
@@ -184,7 +184,7 @@ fn wall_with_doorway(
 }
 
 /// Horizontal patch at height `z` over `[x0, x1] x [y0, y1]`.
-fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
+pub(crate) fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     Patch::new(
         name,
         tidy([(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z]),
@@ -323,7 +323,7 @@ fn hallway(back_x: f64, end_x: f64, door: Profile) -> Scene {
 /// rolled 40 deg: two scanners pitched about the same axis draw parallel lines on the floor, the
 /// end walls and every box face, and two parallel lines are coplanar whatever surfaces they lie
 /// on, so most planes would be fictitious. The roll makes the lines cross on every surface.
-fn hallway_scanners() -> Vec<ScannerConfig> {
+pub(crate) fn hallway_scanners() -> Vec<ScannerConfig> {
     vec![
         ScannerConfig {
             mount_translation_m: [0.05, 0.0, -0.05],
@@ -339,7 +339,7 @@ fn hallway_scanners() -> Vec<ScannerConfig> {
     ]
 }
 
-fn gentle_hover(start_s: f64) -> Oscillation {
+pub(crate) fn gentle_hover(start_s: f64) -> Oscillation {
     Oscillation {
         position_amplitude_m: [0.03, 0.03, 0.02],
         position_period_s: [7.3, 5.9, 4.1],
@@ -436,7 +436,7 @@ pub(crate) fn hallway_flight() -> Scenario {
 /// The paper's rig itself (sec. 4.3): the UTM-30LX level and the UST-20LX pitched 30 deg down
 /// about the same axis. On a floor, an end wall or a box face its lines are parallel to the
 /// level scanner's, so only the side walls give planes of two crossing lines.
-fn paper_rig_scanners() -> Vec<ScannerConfig> {
+pub(crate) fn paper_rig_scanners() -> Vec<ScannerConfig> {
     let mut scanners = hallway_scanners();
     scanners[1].mount_rpy_deg = [0.0, -30.0, 0.0];
     scanners
@@ -491,7 +491,13 @@ pub(crate) fn bare_corridor() -> Scenario {
 /// A person walking: a 0.5 x 1.7 m board standing on the floor from `at`, facing the way it
 /// walks (the horizontal `towards`), so that it moves along its own normal as the hallway's
 /// board does: a plane that moves, not one that slides within itself.
-fn walker(name: &str, at: [f64; 2], floor: f64, towards: [f64; 2], walk: Profile) -> Patch {
+pub(crate) fn walker(
+    name: &str,
+    at: [f64; 2],
+    floor: f64,
+    towards: [f64; 2],
+    walk: Profile,
+) -> Patch {
     let direction = Vector3::new(towards[0], towards[1], 0.0).normalize();
     Patch::new(
         name,

@@ -2,6 +2,7 @@
 
 use super::builtin;
 use super::imu::{ImuConfig, TriadErrors};
+use super::random_room;
 use super::scanner::ScannerConfig;
 use super::scene::Scene;
 use super::trajectory::Trajectory;
@@ -20,7 +21,7 @@ pub const BUILTIN_NAMES: [&str; 7] = [
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, or give a .toml file")]
+    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N (N any whole number), or give a .toml file")]
     UnknownName(String),
     #[error("cannot read scenario file {path}: {reason}")]
     Unreadable { path: String, reason: String },
@@ -68,7 +69,11 @@ impl Scenario {
             "bare-corridor" => Ok(builtin::bare_corridor()),
             "open-room" => Ok(builtin::open_room()),
             "hall-walk" => Ok(builtin::hall_walk()),
-            _ => Err(ScenarioError::UnknownName(name.to_string())),
+            _ => name
+                .strip_prefix(random_room::PREFIX)
+                .and_then(|seed| seed.parse().ok())
+                .map(random_room::random_room)
+                .ok_or_else(|| ScenarioError::UnknownName(name.to_string())),
         }
     }
 
@@ -189,7 +194,7 @@ mod tests {
         let err = Scenario::builtin("foo").unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, or give a .toml file"
+            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N (N any whole number), or give a .toml file"
         );
         assert!(matches!(
             Scenario::resolve("foo"),
