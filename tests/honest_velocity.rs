@@ -429,3 +429,45 @@ fn study_outages_in_flight_20_runs() {
         "{after:?}"
     );
 }
+
+/// Rooms nobody tuned the odometer on (`random-room-N`, seeds 1-20): the even seeds carry the
+/// paper's rig and start still, the odd ones the rolled rig and start in motion 20-40 s in. A
+/// short run in one room is judged more loosely than the pooled studies (inside 3 sigma 95 %,
+/// mean NEES 2.5 per axis); one room in twenty may fail it (docs/autopilot.md names it), a
+/// second is a regression.
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_random_rooms_20_runs() {
+    let trials: Vec<Trial> = (1..=20u64)
+        .map(|seed| {
+            let start_s = if seed.is_multiple_of(2) {
+                0.0
+            } else {
+                20.0 + 20.0 * (seed as f64 * 0.618_034).fract()
+            };
+            Trial::new(&format!("random-room-{seed}"), seed, start_s)
+        })
+        .collect();
+    let runs = fly_all(&trials);
+    let mut dishonest = Vec::new();
+    for (trial, run) in trials.iter().zip(&runs) {
+        let verdict = Verdict::of(run);
+        println!(
+            "{} from {:.1} s: {} first valid {:?}",
+            trial.scenario.name,
+            trial.start_s,
+            serde_json::to_string(&verdict).unwrap(),
+            first_valid_after(run, trial.start_s)
+        );
+        let honest = (0..3)
+            .all(|axis| verdict.inside_3_sigma[axis] >= 0.95 && verdict.mean_nees[axis] <= 2.5);
+        if !honest {
+            dishonest.push(trial.scenario.name.clone());
+        }
+    }
+    println!(
+        "random rooms, 20 runs: {}",
+        serde_json::to_string(&Verdict::pooled(&runs)).unwrap()
+    );
+    assert!(dishonest.len() <= 1, "not honest in {dishonest:?}");
+}
