@@ -183,6 +183,20 @@ fn wall_with_doorway(
     ]
 }
 
+/// A box-shaped room over `x` and `y`: floor, ceiling and four walls between `ceiling` and
+/// `floor` (NED depths).
+pub(crate) fn box_room(x: [f64; 2], y: [f64; 2], [ceiling, floor]: [f64; 2]) -> [Patch; 6] {
+    let ([back, front], [left, right]) = (x, y);
+    [
+        slab("floor", x, y, floor),
+        slab("ceiling", x, y, ceiling),
+        wall("back-wall", [back, left], [back, right], ceiling, floor),
+        wall("front-wall", [front, left], [front, right], ceiling, floor),
+        wall("left-wall", [back, left], [front, left], ceiling, floor),
+        wall("right-wall", [back, right], [front, right], ceiling, floor),
+    ]
+}
+
 /// Horizontal patch at height `z` over `[x0, x1] x [y0, y1]`.
 pub(crate) fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     Patch::new(
@@ -632,14 +646,9 @@ pub(crate) fn hall_walk() -> Scenario {
     let (ceiling, floor) = (-2.5, 1.5);
     let (back, front, left, right) = (-4.0, 16.0, -4.0, 8.0);
     let mut scene = Scene {
-        patches: vec![
-            slab("floor", [back, front], [left, right], floor),
-            slab("ceiling", [back, front], [left, right], ceiling),
-            wall("back-wall", [back, left], [back, right], ceiling, floor),
-            wall("front-wall", [front, left], [front, right], ceiling, floor),
-            wall("left-wall", [back, left], [front, left], ceiling, floor),
-            wall("right-wall", [back, right], [front, right], ceiling, floor),
-            walker(
+        patches: box_room([back, front], [left, right], [ceiling, floor])
+            .into_iter()
+            .chain([walker(
                 "person",
                 [0.0, 6.0],
                 floor,
@@ -650,8 +659,8 @@ pub(crate) fn hall_walk() -> Scenario {
                     cycles: 3,
                     amplitude: 12.0,
                 },
-            ),
-        ],
+            )])
+            .collect(),
     };
     let middle = (ceiling + floor) / 2.0;
     let height = (floor - ceiling) / 2.0;

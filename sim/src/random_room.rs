@@ -4,9 +4,7 @@
 //! walking along a wall, and a walk through two to four random waypoints at a random speed.
 //! Half the seeds carry the paper's rig, half the rolled rig of `config/default.toml`.
 
-use super::builtin::{
-    gentle_hover, hallway_scanners, paper_rig_scanners, slab, tidy, walker, wall,
-};
+use super::builtin::{box_room, gentle_hover, hallway_scanners, paper_rig_scanners, tidy, walker};
 use super::imu::ImuConfig;
 use super::scenario::Scenario;
 use super::scene::{Motion, Profile, Scene};
@@ -64,23 +62,13 @@ impl Room {
     }
 
     fn shell(&self) -> Scene {
-        let Self {
-            back,
-            front,
-            left,
-            right,
-            floor,
-            ceiling,
-        } = *self;
         Scene {
-            patches: vec![
-                slab("floor", [back, front], [left, right], floor),
-                slab("ceiling", [back, front], [left, right], ceiling),
-                wall("back-wall", [back, left], [back, right], ceiling, floor),
-                wall("front-wall", [front, left], [front, right], ceiling, floor),
-                wall("left-wall", [back, left], [front, left], ceiling, floor),
-                wall("right-wall", [back, right], [front, right], ceiling, floor),
-            ],
+            patches: box_room(
+                [self.back, self.front],
+                [self.left, self.right],
+                [self.ceiling, self.floor],
+            )
+            .into(),
         }
     }
 }
