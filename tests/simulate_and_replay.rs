@@ -245,10 +245,14 @@ fn a_tolerant_replay_that_keeps_nothing_is_an_error_naming_the_file() {
 }
 
 /// Every built-in can be recorded, replayed and served (serve-emulators writes the rig
-/// configuration `rig_config` gives): each has an IMU, and a trajectory it can follow.
+/// configuration `rig_config` gives): each has an IMU, and a trajectory it can follow. Two
+/// random rooms stand for the rest, one of each rig.
 #[test]
 fn every_builtin_scenario_simulates_replays_and_has_a_rig_to_serve() {
-    for name in BUILTIN_NAMES {
+    for name in BUILTIN_NAMES
+        .into_iter()
+        .chain(["random-room-3", "random-room-4"])
+    {
         let mut scenario = Scenario::builtin(name).unwrap();
         scenario.duration_s = scenario.duration_s.min(3.0);
         assert!(
