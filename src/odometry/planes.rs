@@ -334,8 +334,9 @@ fn plane_from_pair(
 /// their meeting to show that they lie on one surface. Two scan planes share a line, and a line
 /// of each meets it somewhere; a short line on a box and a wall line 6 m away meet it at one
 /// point within their noise as readily as two lines of one surface, and with the paper's rig
-/// such pairs made planes 5-20 deg from any surface in most furnished rooms (`random-room-N`):
-/// in 9 of 10 the carriers met 10 cm or more (one sigma) off where the scans placed them.
+/// such pairs made planes 5-20 deg from any surface in most furnished rooms (`random-room-N`).
+/// Over 15 scenes 7 in 10 of the planes 6 deg or more off their surface fail this, and 1 in 20
+/// of the true ones, which then stay as walls and floors (docs/autopilot.md).
 const MAX_MEETING_SIGMA_M: f64 = 0.1;
 
 /// Sigma (m) of the gap between two lines' carriers where they come closest: each carrier's
