@@ -135,7 +135,7 @@ pub(crate) fn tidy<const N: usize>(values: [f64; N]) -> [f64; N] {
 }
 
 /// Vertical wall patch from `(x0, y0)` to `(x1, y1)` between heights `z_top` and `z_bottom`.
-pub(crate) fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
+fn wall(name: &str, from: [f64; 2], to: [f64; 2], z_top: f64, z_bottom: f64) -> Patch {
     let along = Vector3::new(to[0] - from[0], to[1] - from[1], 0.0);
     Patch::new(
         name,
@@ -198,7 +198,7 @@ pub(crate) fn box_room(x: [f64; 2], y: [f64; 2], [ceiling, floor]: [f64; 2]) -> 
 }
 
 /// Horizontal patch at height `z` over `[x0, x1] x [y0, y1]`.
-pub(crate) fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
+fn slab(name: &str, x: [f64; 2], y: [f64; 2], z: f64) -> Patch {
     Patch::new(
         name,
         tidy([(x[0] + x[1]) / 2.0, (y[0] + y[1]) / 2.0, z]),

@@ -25,7 +25,7 @@ const PILLAR_CLEARANCE_M: f64 = 0.8;
 
 /// The room's extent in NED: x from `back` to `front`, y from `left` to `right`, and the floor
 /// and ceiling depths (positive down) with the start at z = 0.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug)]
 struct Room {
     back: f64,
     front: f64,
