@@ -69,10 +69,11 @@ pub struct OdometryConfig {
     /// a wall square on). Crossing pairs are still preferred when lines compete.
     pub accept_parallel_lines: bool,
     /// A building's floors are level and its walls plumb within this, degrees, judged by the
-    /// filter's attitude. With `accept_parallel_lines`, a plane from parallel lines is kept only
-    /// if it is one or the other: its lines cannot show that they lie on one surface, and the
-    /// fictitious planes they make in a building join a wall line to a floor or ceiling line,
-    /// so they lean between the two. And a level plane may be the only one facing a direction
+    /// filter's attitude (widened by three of its tilt sigmas and of the plane's normal sigma).
+    /// A plane from two lines is kept only if it is one or the other: two lines that meet are
+    /// coplanar whatever surfaces they lie on (a wall line and a line on a box face meet where
+    /// the face meets the wall), and parallel lines always are, so the fictitious planes they
+    /// make in a building lean between the surfaces they join. And a level plane may be the only one facing a direction
     /// (`[integrity] lone_plane_*`): floors do not walk. A measured floor or ceiling gives a
     /// filter that lost its vertical its tilt back (`fusion/building_vertical.rs`). 90 says the
     /// scene is not a building.
@@ -311,8 +312,8 @@ impl OdometryConfig {
 
     /// Plane-extraction parameters, given the downward vertical in body axes when the filter
     /// knows it.
-    pub(crate) fn plane_parameters(&self, down: Option<Vector3<f64>>) -> PlaneParameters {
-        let parallel = match self.building(down) {
+    pub(crate) fn plane_parameters(&self, vertical: Option<Vertical>) -> PlaneParameters {
+        let parallel = match self.building(vertical.map(|v| v.down)) {
             _ if self.accept_parallel_lines => ParallelLines::Accepted,
             Some(building) => ParallelLines::LevelOrPlumb(building),
             None => ParallelLines::Refused,
@@ -323,6 +324,10 @@ impl OdometryConfig {
             require_third_line: self.require_third_line,
             parallel,
             max_sigma_normal_rad: self.max_sigma_normal_deg.to_radians(),
+            building: vertical.and_then(|v| {
+                self.building(Some(v.down))
+                    .map(|building| building.judged_by(v.sigma_rad))
+            }),
         }
     }
 
@@ -584,7 +589,7 @@ impl Odometer {
         });
         out.refused = self.planes.extract(
             scan_lines,
-            &self.config.plane_parameters(down),
+            &self.config.plane_parameters(vertical),
             admit,
             &mut out.planes,
             &mut out.unscreened,

@@ -27,6 +27,23 @@ pub(crate) struct PlaneParameters {
     /// Planes whose normal is known worse than this (rad) are dropped: they add little and their
     /// error is no longer linear in the noise.
     pub max_sigma_normal_rad: f64,
+    /// In a building (judged by the filter's vertical and its sigma), only level and plumb
+    /// planes are kept, crossing or not. Two lines that meet are coplanar whatever surfaces
+    /// they lie on, and a wall line and a short line on a box beside it meet where the box's
+    /// face meets the wall: while the platform hovers, their plane stood in every epoch, 33 deg
+    /// off level (`random-room-75`), and its small turns as the platform bobbed taught a start
+    /// in motion a gyro bias 15 sigmas off, whose drift then leaked gravity into the velocity.
+    pub building: Option<Building>,
+}
+
+impl PlaneParameters {
+    /// Whether a plane whose normal is known to `sigma_normal` (rad) may be level or plumb.
+    fn fits_the_building(&self, normal: &Vector3<f64>, sigma_normal: f64) -> bool {
+        self.building.is_none_or(|building| {
+            let building = building.judged_by(sigma_normal);
+            building.is_level(normal) || building.is_plumb(normal)
+        })
+    }
 }
 
 /// What becomes of a plane whose two lines are parallel: their coplanarity proves nothing.
@@ -314,7 +331,9 @@ fn plane_from_pair(
     // clear angle shows by its coplanarity that it lies on one surface.
     let crossing = s1.direction.cross(&s2.direction).norm() > tilt_gate.max(MIN_CROSSING_SINE)
         && meeting_sigma(&line1, &line2) <= MAX_MEETING_SIGMA_M;
-    if !crossing && !parameters.parallel.admits(&normal) {
+    if !crossing && !parameters.parallel.admits(&normal)
+        || !parameters.fits_the_building(&normal, sigma_normal)
+    {
         return None;
     }
     Some(Plane {
@@ -393,6 +412,7 @@ fn plane_from_crossing_lines(
     let uncertainty = joint_plane_uncertainty(line1, line2, &normal, &centre);
     if uncertainty.sigma_normal.is_nan()
         || uncertainty.sigma_normal > parameters.max_sigma_normal_rad
+        || !parameters.fits_the_building(&normal, uncertainty.sigma_normal)
     {
         return None;
     }
@@ -540,5 +560,46 @@ mod tests {
         // 30 mrad over 34.6 m is 1.05 m.
         assert!((sigma - 1.057).abs() < 0.01, "{sigma}");
         assert!(sigma > MAX_MEETING_SIGMA_M);
+    }
+
+    fn in_a_building(vertical_sigma_rad: f64) -> PlaneParameters {
+        PlaneParameters {
+            min_separation_m: 0.1,
+            coplanarity_gate_sigmas: 3.0,
+            require_third_line: false,
+            parallel: ParallelLines::Refused,
+            max_sigma_normal_rad: 0.1,
+            building: Some(
+                Building {
+                    down: Vector3::z(),
+                    max_tilt_rad: 3f64.to_radians(),
+                }
+                .judged_by(vertical_sigma_rad),
+            ),
+        }
+    }
+
+    fn tipped_from_level(angle_deg: f64) -> Vector3<f64> {
+        let angle = angle_deg.to_radians();
+        Vector3::new(angle.sin(), 0.0, angle.cos())
+    }
+
+    #[test]
+    fn in_a_building_only_level_and_plumb_planes_are_kept_as_the_vertical_and_the_plane_allow() {
+        let settled = in_a_building(0.002);
+        assert!(settled.fits_the_building(&tipped_from_level(2.0), 0.002));
+        assert!(settled.fits_the_building(&tipped_from_level(88.0), 0.002));
+        assert!(!settled.fits_the_building(&tipped_from_level(5.0), 0.002));
+        // A plane whose normal is known to 2 deg may look 5 deg off and be a floor.
+        assert!(settled.fits_the_building(&tipped_from_level(5.0), 2f64.to_radians()));
+        // A start in motion knows its vertical to 3 deg: 11.6 deg are allowed, not 33.
+        let in_motion = in_a_building(0.052);
+        assert!(in_motion.fits_the_building(&tipped_from_level(11.0), 0.002));
+        assert!(!in_motion.fits_the_building(&tipped_from_level(57.0), 0.002));
+        let outdoors = PlaneParameters {
+            building: None,
+            ..settled
+        };
+        assert!(outdoors.fits_the_building(&tipped_from_level(33.0), 0.002));
     }
 }
