@@ -193,8 +193,11 @@ impl PriorWitness {
     }
 }
 
-/// Directions (navigation axes) fused on the word of a lone plane the prediction could not
-/// check, for the rotation and the displacement.
+/// Directions (navigation axes) the estimate cannot vouch for, for the rotation and the
+/// displacement: fused on the word of a lone plane the prediction could not check, or where a
+/// lone plane contradicted the prediction. A contradiction means the plane moved or the filter
+/// is off, and nothing tells which: in `random-room-35` the far wall, the only plane along the
+/// room, was right and the filter's velocity along it was 0.3 m/s off and growing.
 #[derive(Debug, Default)]
 pub(super) struct Provisional {
     rotation: Vec<Vector3<f64>>,
@@ -244,8 +247,8 @@ impl Provisional {
     }
 }
 
-/// Adds the unchecked lone directions that went in, and drops the held directions that went in
-/// checked: by the prediction, or by two planes.
+/// Adds the unchecked lone directions that went in and the contradicted ones, and drops the
+/// held directions that went in checked: by the prediction, or by two planes.
 fn settle(
     held: &mut Vec<Vector3<f64>>,
     checked: &[(Vector3<f64>, Check)],
@@ -270,7 +273,12 @@ fn settle(
         let known = held
             .iter()
             .any(|v| v.dot(&navigation).abs() > SAME_DIRECTION);
-        if *check == Check::Unchecked && went_in(u) && !known {
+        let in_doubt = match check {
+            Check::Unchecked => went_in(u),
+            Check::Contradicted => true,
+            Check::Confirmed => false,
+        };
+        if in_doubt && !known {
             held.push(navigation);
         }
     }
