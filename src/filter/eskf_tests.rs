@@ -1111,7 +1111,8 @@ fn the_speed_prior_leaves_an_observed_velocity_alone() {
 /// A level floor seen by a platform that started in motion (tilt known to degrees): its two
 /// level directions, each tipped out of level by a drawn error of `sigma`, give the tilt back to
 /// about `sigma`, honestly (mean NEES of the horizontal attitude error in its 95 % interval over
-/// 200 seeded runs).
+/// the 200 seeded runs the assumption's 99 % gate lets through, and it lets through at least
+/// 97 % of them).
 #[test]
 fn a_level_floor_gives_a_start_in_motion_its_tilt_back_honestly() {
     let config = FilterConfig {
@@ -1123,6 +1124,7 @@ fn a_level_floor_gives_a_start_in_motion_its_tilt_back_honestly() {
     let sigma = 0.004;
     let runs = 200;
     let mut summed = 0.0;
+    let mut accepted = 0;
     for seed in 0..runs {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let start = NominalState::at_rest(drawn_tilt(&truth, &config, &mut rng), Vector3::zeros());
@@ -1136,7 +1138,11 @@ fn a_level_floor_gives_a_start_in_motion_its_tilt_back_honestly() {
             }
         });
         let report = filter.update_level_directions(&level).unwrap();
-        assert!(report.accepted && report.dof == 2, "{report:?}");
+        assert_eq!(report.dof, 2, "{report:?}");
+        if !report.accepted {
+            continue;
+        }
+        accepted += 1;
         assert!(filter.tilt_sigma() < 1.2 * sigma, "{}", filter.tilt_sigma());
         let error = (truth * filter.state().q.inverse()).scaled_axis().xy();
         let covariance = filter
@@ -1145,10 +1151,41 @@ fn a_level_floor_gives_a_start_in_motion_its_tilt_back_honestly() {
             .into_owned();
         summed += error.dot(&covariance.cholesky().unwrap().solve(&error));
     }
-    let [low, high] = mean_nees_interval(2, runs as usize);
-    let mean = summed / runs as f64;
+    assert!(accepted >= 194, "{accepted} of {runs} accepted");
+    let [low, high] = mean_nees_interval(2, accepted);
+    let mean = summed / accepted as f64;
     assert!(
         (low..=high).contains(&mean),
         "{mean} not in [{low}, {high}]"
     );
+}
+
+/// A plane that only looks level (a wall line and a box-top line at the same height) tips the
+/// filter's level by 16 mrad where the filter knows its tilt to 5 mrad: a measurement's 99.99 %
+/// gate would take it (NIS about 17 on two rows in `random-room-59`), the assumption's 99 % gate
+/// does not, and a true floor beside it still passes.
+#[test]
+fn a_floor_the_filter_disputes_is_not_taken_for_level() {
+    let config = FilterConfig {
+        initial_sigma_tilt_deg: 0.3,
+        ..FilterConfig::default()
+    };
+    let truth = UnitQuaternion::from_euler_angles(0.02, -0.17, 0.4);
+    let down = truth.inverse_transform_vector(&Vector3::z());
+    let first = down.cross(&Vector3::x()).normalize();
+    let floor = |tipped_rad: f64| {
+        [first, down.cross(&first)].map(|body| LevelDirection {
+            body: (body + down * tipped_rad).normalize(),
+            variance: 0.003f64.powi(2),
+        })
+    };
+    let fresh = || {
+        let start = NominalState::at_rest(truth, Vector3::zeros());
+        Eskf::with_initial_state(config.clone(), 0.0, start).unwrap()
+    };
+    let sloping = fresh().update_level_directions(&floor(0.016)).unwrap();
+    assert!(!sloping.accepted, "{sloping:?}");
+    assert!(sloping.nis < chi_square_quantile(0.9999, 2), "{sloping:?}");
+    let level = fresh().update_level_directions(&floor(0.003)).unwrap();
+    assert!(level.accepted, "{level:?}");
 }
