@@ -31,7 +31,7 @@ use level_lines::{level_planes, LevelLineParameters};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
-use planes::{Building, ParallelLines, Plane, PlaneExtractor, PlaneParameters, ScanLines};
+use planes::{Building, Plane, PlaneExtractor, PlaneParameters, ScanLines, Surfaces};
 use rotation::{solve_rotation, RotationParameters};
 use serde::{Deserialize, Serialize};
 use wall_lines::{wall_planes, WallLineParameters};
@@ -73,7 +73,8 @@ pub struct OdometryConfig {
     /// A plane from two lines is kept only if it is one or the other: two lines that meet are
     /// coplanar whatever surfaces they lie on (a wall line and a line on a box face meet where
     /// the face meets the wall), and parallel lines always are, so the fictitious planes they
-    /// make in a building lean between the surfaces they join. And a level plane may be the only one facing a direction
+    /// make in a building lean between the surfaces they join (`accept_parallel_lines` keeps
+    /// every one, as the paper does). And a level plane may be the only one facing a direction
     /// (`[integrity] lone_plane_*`): floors do not walk. A measured floor or ceiling gives a
     /// filter that lost its vertical its tilt back (`fusion/building_vertical.rs`). 90 says the
     /// scene is not a building.
@@ -313,21 +314,21 @@ impl OdometryConfig {
     /// Plane-extraction parameters, given the downward vertical in body axes when the filter
     /// knows it.
     pub(crate) fn plane_parameters(&self, vertical: Option<Vertical>) -> PlaneParameters {
-        let parallel = match self.building(vertical.map(|v| v.down)) {
-            _ if self.accept_parallel_lines => ParallelLines::Accepted,
-            Some(building) => ParallelLines::LevelOrPlumb(building),
-            None => ParallelLines::Refused,
+        let building = vertical.and_then(|v| Some((self.building(Some(v.down))?, v.sigma_rad)));
+        let surfaces = match building {
+            _ if self.accept_parallel_lines => Surfaces::All,
+            Some((building, vertical_sigma_rad)) => Surfaces::Building {
+                building,
+                vertical_sigma_rad,
+            },
+            None => Surfaces::Crossing,
         };
         PlaneParameters {
             min_separation_m: self.min_line_separation_m,
             coplanarity_gate_sigmas: self.coplanarity_gate_sigmas,
             require_third_line: self.require_third_line,
-            parallel,
+            surfaces,
             max_sigma_normal_rad: self.max_sigma_normal_deg.to_radians(),
-            building: vertical.and_then(|v| {
-                self.building(Some(v.down))
-                    .map(|building| building.judged_by(v.sigma_rad))
-            }),
         }
     }
 

@@ -21,48 +21,61 @@ pub(crate) struct PlaneParameters {
     pub coplanarity_gate_sigmas: f64,
     /// Keep only planes that a third line confirms (guards against fictitious planes, Fig. 3).
     pub require_third_line: bool,
-    /// Whether to pair lines too close to parallel (or meeting too far away) for the
-    /// coplanarity test to mean anything; such planes are tried last, as they may be fictitious.
-    pub parallel: ParallelLines,
+    /// Which planes of two lines are kept: pairs too close to parallel (or meeting too far away)
+    /// for the coplanarity test to mean anything, and in a building sloping ones.
+    pub surfaces: Surfaces,
     /// Planes whose normal is known worse than this (rad) are dropped: they add little and their
     /// error is no longer linear in the noise.
     pub max_sigma_normal_rad: f64,
-    /// In a building (judged by the filter's vertical and its sigma), only level and plumb
-    /// planes are kept, crossing or not. Two lines that meet are coplanar whatever surfaces
-    /// they lie on, and a wall line and a short line on a box beside it meet where the box's
-    /// face meets the wall: while the platform hovers, their plane stood in every epoch, 33 deg
-    /// off level (`random-room-75`), and its small turns as the platform bobbed taught a start
-    /// in motion a gyro bias 15 sigmas off, whose drift then leaked gravity into the velocity.
-    pub building: Option<Building>,
 }
 
 impl PlaneParameters {
-    /// Whether a plane whose normal is known to `sigma_normal` (rad) may be level or plumb.
+    /// Whether a plane of crossing lines whose normal is known to `sigma_normal` (rad) is kept.
     fn fits_the_building(&self, normal: &Vector3<f64>, sigma_normal: f64) -> bool {
-        self.building.is_none_or(|building| {
-            let building = building.judged_by(sigma_normal);
-            building.is_level(normal) || building.is_plumb(normal)
-        })
+        self.surfaces.admits(normal, sigma_normal, true)
     }
 }
 
-/// What becomes of a plane whose two lines are parallel: their coplanarity proves nothing.
+/// Which planes of two lines are kept.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum ParallelLines {
-    Refused,
-    /// As the paper does.
-    Accepted,
-    /// Only if level or plumb: a building's surfaces are, and a fictitious plane joining a wall
-    /// line to a floor line is not.
-    LevelOrPlumb(Building),
+pub(crate) enum Surfaces {
+    /// Only those of crossing lines: two parallel lines are coplanar whatever they lie on.
+    Crossing,
+    /// Every one, crossing or parallel, as the paper does.
+    All,
+    /// In a building seen with the filter's vertical known to `vertical_sigma_rad`, only level
+    /// and plumb ones. Parallel lines must be within the building's own tilt: the fictitious
+    /// planes they make join a wall line to a floor line and lean between the two. Crossing
+    /// lines prove less than it seems, since two lines that meet are coplanar whatever
+    /// surfaces they lie on: a wall line and a short line on a box beside it meet where the
+    /// box's face meets the wall, and while the platform hovered their plane stood in every
+    /// epoch, 33 deg off level (`random-room-75`); its small turns as the platform bobbed taught
+    /// a start in motion a gyro bias 15 sigmas off. They must be within the building's tilt
+    /// widened by three sigmas of the vertical and of the plane's normal.
+    Building {
+        building: Building,
+        vertical_sigma_rad: f64,
+    },
 }
 
-impl ParallelLines {
-    fn admits(&self, normal: &Vector3<f64>) -> bool {
-        match self {
-            Self::Refused => false,
-            Self::Accepted => true,
-            Self::LevelOrPlumb(building) => building.is_level(normal) || building.is_plumb(normal),
+impl Surfaces {
+    fn admits(&self, normal: &Vector3<f64>, sigma_normal: f64, crossing: bool) -> bool {
+        match *self {
+            Self::Crossing => crossing,
+            Self::All => true,
+            Self::Building {
+                building,
+                vertical_sigma_rad,
+            } => {
+                let building = if crossing {
+                    building
+                        .judged_by(vertical_sigma_rad)
+                        .judged_by(sigma_normal)
+                } else {
+                    building
+                };
+                building.is_level(normal) || building.is_plumb(normal)
+            }
         }
     }
 }
@@ -331,9 +344,7 @@ fn plane_from_pair(
     // clear angle shows by its coplanarity that it lies on one surface.
     let crossing = s1.direction.cross(&s2.direction).norm() > tilt_gate.max(MIN_CROSSING_SINE)
         && meeting_sigma(&line1, &line2) <= MAX_MEETING_SIGMA_M;
-    if !crossing && !parameters.parallel.admits(&normal)
-        || !parameters.fits_the_building(&normal, sigma_normal)
-    {
+    if !parameters.surfaces.admits(&normal, sigma_normal, crossing) {
         return None;
     }
     Some(Plane {
@@ -567,15 +578,14 @@ mod tests {
             min_separation_m: 0.1,
             coplanarity_gate_sigmas: 3.0,
             require_third_line: false,
-            parallel: ParallelLines::Refused,
-            max_sigma_normal_rad: 0.1,
-            building: Some(
-                Building {
+            surfaces: Surfaces::Building {
+                building: Building {
                     down: Vector3::z(),
                     max_tilt_rad: 3f64.to_radians(),
-                }
-                .judged_by(vertical_sigma_rad),
-            ),
+                },
+                vertical_sigma_rad,
+            },
+            max_sigma_normal_rad: 0.1,
         }
     }
 
@@ -597,7 +607,7 @@ mod tests {
         assert!(in_motion.fits_the_building(&tipped_from_level(11.0), 0.002));
         assert!(!in_motion.fits_the_building(&tipped_from_level(57.0), 0.002));
         let outdoors = PlaneParameters {
-            building: None,
+            surfaces: Surfaces::Crossing,
             ..settled
         };
         assert!(outdoors.fits_the_building(&tipped_from_level(33.0), 0.002));
