@@ -25,8 +25,8 @@ pub struct PlaneMatch {
 pub(crate) struct Matcher {
     candidates: Vec<PlaneMatch>,
     taken: [Vec<bool>; 2],
-    /// Which matches of the assignment survive the ambiguity test.
-    kept: Vec<bool>,
+    /// Which matches of the assignment are in doubt (`is_ambiguous`).
+    doubtful: Vec<bool>,
 }
 
 impl Matcher {
@@ -48,20 +48,21 @@ impl Matcher {
         out: &mut Vec<PlaneMatch>,
     ) {
         self.assign(previous, current, prior, gates, out);
-        let doubtful = |m: &PlaneMatch| self.is_ambiguous(m, previous, current);
-        if out.iter().any(doubtful) {
-            let certain = out.iter().filter(|m| !doubtful(m));
+        if self.mark_doubtful(previous, current, out) {
+            let certain = out
+                .iter()
+                .zip(&self.doubtful)
+                .filter(|(_, doubtful)| !**doubtful)
+                .map(|(m, _)| m);
             if let Some(refined) = refined_prior(prior, previous, current, certain) {
                 self.assign(previous, current, &refined, gates, out);
+                self.mark_doubtful(previous, current, out);
             }
-            self.kept.clear();
-            for m in out.iter() {
-                let ambiguous = self.is_ambiguous(m, previous, current);
-                self.kept
-                    .push(!ambiguous || is_corroborated(m, out, previous, current));
+            for (m, doubtful) in out.iter().zip(self.doubtful.iter_mut()) {
+                *doubtful = *doubtful && !is_corroborated(m, out, previous, current);
             }
-            let mut kept = self.kept.iter();
-            out.retain(|_| kept.next().copied().unwrap_or(false));
+            let mut doubtful = self.doubtful.iter();
+            out.retain(|_| !doubtful.next().copied().unwrap_or(false));
         }
         out.sort_unstable_by_key(|m| m.previous);
     }
@@ -107,22 +108,39 @@ impl Matcher {
         }
     }
 
-    /// Whether the prior also let either plane of `chosen` pair with another plane that is a
-    /// different surface (`ONE_SURFACE_*`): a surface that one epoch sees as two planes (a wall
-    /// split by a door) is one.
-    fn is_ambiguous(&self, chosen: &PlaneMatch, previous: &[Plane], current: &[Plane]) -> bool {
-        let distinct = |a: &Plane, b: &Plane| {
-            (a.rho - b.rho).abs() > ONE_SURFACE_M || a.normal.dot(&b.normal) < ONE_SURFACE_RAD.cos()
-        };
-        self.candidates.iter().any(|other| {
-            (other.previous == chosen.previous
-                && other.current != chosen.current
-                && distinct(&current[other.current], &current[chosen.current]))
-                || (other.current == chosen.current
-                    && other.previous != chosen.previous
-                    && distinct(&previous[other.previous], &previous[chosen.previous]))
-        })
+    /// Marks which of `matches` are in doubt; returns whether any is.
+    fn mark_doubtful(
+        &mut self,
+        previous: &[Plane],
+        current: &[Plane],
+        matches: &[PlaneMatch],
+    ) -> bool {
+        let candidates = &self.candidates;
+        self.doubtful.clear();
+        self.doubtful.extend(
+            matches
+                .iter()
+                .map(|m| is_ambiguous(m, candidates, previous, current)),
+        );
+        self.doubtful.contains(&true)
     }
+}
+
+/// Whether the prior also let either plane of `chosen` pair (`candidates`, the gated pairs)
+/// with another plane that is a different surface: a surface that one epoch sees as two planes
+/// (a wall split by a door) is one (`is_one_surface`).
+fn is_ambiguous(
+    chosen: &PlaneMatch,
+    candidates: &[PlaneMatch],
+    previous: &[Plane],
+    current: &[Plane],
+) -> bool {
+    candidates.iter().any(|other| {
+        (other.previous == chosen.previous
+            && !is_one_surface(&current[other.current], &current[chosen.current]))
+            || (other.current == chosen.current
+                && !is_one_surface(&previous[other.previous], &previous[chosen.previous]))
+    })
 }
 
 /// Whether another match, of a different surface facing the same way, moved it by the same
@@ -135,21 +153,37 @@ fn is_corroborated(
     previous: &[Plane],
     current: &[Plane],
 ) -> bool {
-    let moved = |m: &PlaneMatch| previous[m.previous].rho - current[m.current].rho;
-    let variance = |m: &PlaneMatch| {
-        previous[m.previous].uncertainty.sigma_rho.powi(2)
-            + current[m.current].uncertainty.sigma_rho.powi(2)
-    };
     let plane = &previous[chosen.previous];
+    let (moved, variance) = distance_change(chosen, previous, current);
     matches.iter().any(|other| {
         let other_plane = &previous[other.previous];
-        other.previous != chosen.previous
-            && other_plane.normal.dot(&plane.normal) >= ONE_SURFACE_RAD.cos()
-            && (other_plane.rho - plane.rho).abs() > ONE_SURFACE_M
-            && (moved(other) - moved(chosen)).abs()
-                <= CORROBORATION_SIGMAS * (variance(other) + variance(chosen)).sqrt()
+        let (other_moved, other_variance) = distance_change(other, previous, current);
+        faces_the_same_way(other_plane, plane)
+            && !is_one_surface(other_plane, plane)
+            && (other_moved - moved).abs()
+                <= CORROBORATION_SIGMAS * (other_variance + variance).sqrt()
                     + CORROBORATION_MARGIN_M
     })
+}
+
+/// `rho_i - rho_j` of a match, the displacement along its normal (eq 1), with its variance.
+fn distance_change(m: &PlaneMatch, previous: &[Plane], current: &[Plane]) -> (f64, f64) {
+    let (plane_i, plane_j) = (&previous[m.previous], &current[m.current]);
+    (
+        plane_i.rho - plane_j.rho,
+        plane_i.uncertainty.sigma_rho.powi(2) + plane_j.uncertainty.sigma_rho.powi(2),
+    )
+}
+
+fn faces_the_same_way(a: &Plane, b: &Plane) -> bool {
+    a.normal.dot(&b.normal) >= ONE_SURFACE_RAD.cos()
+}
+
+/// Two planes of one epoch this close in distance (m) and in direction (rad) may be one surface
+/// (a wall split by a door, its unevenness): mistaking one for the other costs the solve less
+/// than its planes' own spread. A plane is one surface with itself.
+fn is_one_surface(a: &Plane, b: &Plane) -> bool {
+    faces_the_same_way(a, b) && (a.rho - b.rho).abs() <= ONE_SURFACE_M
 }
 
 /// How closely two surfaces' moves must agree to corroborate each other: within three sigmas
@@ -170,12 +204,10 @@ fn refined_prior<'a>(
     let mut moment = information * prior.translation;
     let mut any = false;
     for m in matches {
-        let (plane_i, plane_j) = (&previous[m.previous], &current[m.current]);
-        let n = plane_i.normal;
-        let weight =
-            1.0 / (plane_i.uncertainty.sigma_rho.powi(2) + plane_j.uncertainty.sigma_rho.powi(2));
-        information += n * n.transpose() * weight;
-        moment += n * ((plane_i.rho - plane_j.rho) * weight);
+        let n = previous[m.previous].normal;
+        let (moved, variance) = distance_change(m, previous, current);
+        information += n * n.transpose() / variance;
+        moment += n * (moved / variance);
         any = true;
     }
     let covariance = information.try_inverse().filter(|_| any)?;
@@ -186,9 +218,8 @@ fn refined_prior<'a>(
     })
 }
 
-/// Two planes of one epoch this close in distance (m) and in direction (rad) may be one surface
-/// (a wall split by a door, its unevenness): mistaking one for the other costs the solve less
-/// than its planes' own spread.
+/// How close (m, rad) two planes of one epoch are when they may be one surface
+/// (`is_one_surface`).
 const ONE_SURFACE_M: f64 = 0.03;
 const ONE_SURFACE_RAD: f64 = 0.035;
 
