@@ -388,6 +388,22 @@ pub struct EpochPlanes {
     pub down: Option<Vector3<f64>>,
 }
 
+/// Keeps the planes through one line that `admit` refused among the epoch's unscreened
+/// planes, so that later epochs can be confirmed against them. Without them a floor refused
+/// once (the keyframe's prior off for a moment) was refused in every later epoch: no keyframe
+/// held it any more, as a level line's plane has no pair to be found again without the test.
+fn remember_unscreened_single_lines(out: &mut EpochPlanes, from_pairs: usize, refused: &[Plane]) {
+    out.refused += refused.len();
+    if refused.is_empty() {
+        return;
+    }
+    if out.unscreened.is_empty() {
+        out.unscreened.extend_from_slice(&out.planes[..from_pairs]);
+    }
+    out.unscreened.extend_from_slice(&out.planes[from_pairs..]);
+    out.unscreened.extend_from_slice(refused);
+}
+
 /// The outcome of one epoch pair: matches and both solves, re-solvable with exclusions.
 #[derive(Debug, Clone, PartialEq)]
 pub struct OdometryEpoch {
@@ -468,6 +484,8 @@ pub struct Odometer {
     planes: PlaneExtractor,
     /// Which lines the pairs took, for the level lines.
     paired: [Vec<bool>; 2],
+    /// Planes through one line that the admission test refused, reused between epochs.
+    refused_single_line: Vec<Plane>,
     matcher: Matcher,
 }
 
@@ -495,6 +513,7 @@ impl Odometer {
             lines: LineExtractor::default(),
             planes: PlaneExtractor::default(),
             paired: [Vec::new(), Vec::new()],
+            refused_single_line: Vec::new(),
             matcher: Matcher::default(),
         })
     }
@@ -607,12 +626,22 @@ impl Odometer {
         for line in out.planes.iter().flat_map(|plane| plane.lines) {
             self.paired[line.scanner][line.segment] = true;
         }
+        let from_pairs = out.planes.len();
+        let mut refused = std::mem::take(&mut self.refused_single_line);
+        refused.clear();
+        let mut screen = |plane: &Plane| {
+            let admitted = admit(plane);
+            if !admitted {
+                refused.push(*plane);
+            }
+            admitted
+        };
         if let Some(parameters) = level {
             level_planes(
                 &scan_lines,
                 &mut self.paired,
                 &parameters,
-                admit,
+                &mut screen,
                 &mut out.planes,
             );
         }
@@ -621,10 +650,12 @@ impl Odometer {
                 &scan_lines,
                 &mut self.paired,
                 &parameters,
-                admit,
+                &mut screen,
                 &mut out.planes,
             );
         }
+        remember_unscreened_single_lines(out, from_pairs, &refused);
+        self.refused_single_line = refused;
     }
 
     /// Matches `current` (epoch j) to `previous` (epoch i) under `prior` and solves both.
