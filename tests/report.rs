@@ -113,7 +113,7 @@ fn the_report_holds_every_figure_and_each_svg_parses_with_its_series() {
         .unwrap();
     assert!(longest > 500, "{longest} points");
     assert!(
-        html.contains("1269 of 1366"),
+        html.contains("1306 of 1366"),
         "the summary table holds the autopilot view"
     );
     assert_truth_is_tum_for_evo(&dir.join("truth.tum"));

@@ -19,7 +19,10 @@
 //! contradicts is not fused. One the prediction cannot check (it has dead-reckoned along it, or
 //! the filter has just started in motion and has nothing else to learn the velocity from) is
 //! fused, but held `Provisional`: the estimate is not to be used until a later epoch checks
-//! that direction against the prediction it now carries, or two planes observe it.
+//! that direction against the prediction it now carries, or two planes observe it. One whose
+//! plane is far vaguer than the prediction (a floor from two parallel lines, its normal a few
+//! mrad off, beside a tilt known to one) needs no check: the filter takes so small a share of
+//! it that no fault the test could miss moves the estimate past the prediction's own sigma.
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use serde::Serialize;
@@ -58,9 +61,10 @@ impl LoneWitnesses {
             .map(|(_, m)| {
                 let plane = &previous.planes[m.previous];
                 let level = building.is_some_and(|b| b.is_level(&plane.normal));
+                let wide = plane.extent_m >= min_extent_m;
                 // Only crossing lines show they lie on one surface: two parallel ones may join
                 // a wall line to a floor line, long and nearly level as a floor.
-                let static_surface = plane.crossing && (level || plane.extent_m >= min_extent_m);
+                let static_surface = plane.crossing && (level || wide);
                 Witness {
                     normal: plane.normal,
                     static_surface,
@@ -93,7 +97,8 @@ impl LoneWitnesses {
             .scaled_axis();
             let witness = PriorWitness {
                 difference,
-                covariance: solution.covariance + prior.rotation_covariance,
+                prediction: prior.rotation_covariance,
+                solution: solution.covariance,
                 max_mdb: limits.lone_plane_detect_mradps * 1e-3 * interval_s,
             };
             witness.check_all(self.rotation, thresholds)
@@ -101,7 +106,8 @@ impl LoneWitnesses {
         let displacement = displacement.map_or_else(Vec::new, |solution| {
             let witness = PriorWitness {
                 difference: solution.x - prior.translation,
-                covariance: solution.covariance + prior.translation_covariance,
+                prediction: prior.translation_covariance,
+                solution: solution.covariance,
                 max_mdb: limits.lone_plane_detect_mps * interval_s,
             };
             witness.check_all(self.displacement, thresholds)
@@ -119,10 +125,21 @@ impl LoneWitnesses {
 pub enum Check {
     /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
     Confirmed,
+    /// It agrees, and is so much surer than the plane that no fault the test could miss moves
+    /// the estimate by more than the prediction's own sigma: the plane adds little, and cannot
+    /// add much that is wrong.
+    Outweighed,
     /// It disagrees beyond the test's threshold: the plane moved, or the filter is off.
     Contradicted,
     /// It is too uncertain to tell.
     Unchecked,
+}
+
+impl Check {
+    /// Whether the prediction vouches for the direction.
+    fn vouches(self) -> bool {
+        matches!(self, Self::Confirmed | Self::Outweighed)
+    }
 }
 
 /// The lone directions (body i) of an epoch, each with the prediction's check.
@@ -161,10 +178,11 @@ impl CheckedLone {
     }
 }
 
-/// A solve's difference from the filter's prediction, with the covariance of that difference.
+/// A solve's difference from the filter's prediction, with the covariances of both.
 struct PriorWitness {
     difference: Vector3<f64>,
-    covariance: Matrix3<f64>,
+    prediction: Matrix3<f64>,
+    solution: Matrix3<f64>,
     max_mdb: f64,
 }
 
@@ -182,11 +200,18 @@ impl PriorWitness {
 
     fn check(&self, u: &Vector3<f64>, thresholds: &Thresholds) -> Check {
         let gamma = thresholds.sole();
-        let sigma = u.dot(&(self.covariance * u)).sqrt();
+        let predicted = u.dot(&(self.prediction * u));
+        let sigma = (predicted + u.dot(&(self.solution * u))).sqrt();
+        let mdb = (gamma + thresholds.missed_detection_quantile) * sigma;
+        // The filter takes a share predicted / sigma^2 of the difference along u: a fault the
+        // test cannot see moves the estimate by at most that share of the MDB.
+        let pull = mdb * predicted / (sigma * sigma);
         if u.dot(&self.difference).abs() > gamma * sigma {
             Check::Contradicted
-        } else if (gamma + thresholds.missed_detection_quantile) * sigma <= self.max_mdb {
+        } else if mdb <= self.max_mdb {
             Check::Confirmed
+        } else if pull <= predicted.sqrt() {
+            Check::Outweighed
         } else {
             Check::Unchecked
         }
@@ -258,7 +283,7 @@ fn settle(
     let went_in = |u: &Vector3<f64>| fused.is_some_and(|o| o.contains(u, SAME_DIRECTION));
     let unchecked: Vec<Vector3<f64>> = checked
         .iter()
-        .filter(|(_, check)| *check != Check::Confirmed)
+        .filter(|(_, check)| !check.vouches())
         .map(|(u, _)| *u)
         .collect();
     held.retain(|v| {
@@ -276,7 +301,7 @@ fn settle(
         let in_doubt = match check {
             Check::Unchecked => went_in(u),
             Check::Contradicted => true,
-            Check::Confirmed => false,
+            Check::Confirmed | Check::Outweighed => false,
         };
         if in_doubt && !known {
             held.push(navigation);
@@ -393,13 +418,14 @@ mod tests {
         let thresholds = Thresholds::new(1e-3, 1e-3);
         let tight = PriorWitness {
             difference: Vector3::new(0.01, 0.0, 0.0),
-            covariance: Matrix3::identity() * 0.01f64.powi(2),
+            prediction: Matrix3::identity() * 0.007f64.powi(2),
+            solution: Matrix3::identity() * 0.007f64.powi(2),
             max_mdb: 0.1,
         };
         assert_eq!(tight.check(&Vector3::x(), &thresholds), Check::Confirmed);
         // The same plane after the filter dead-reckoned along x: nothing checks it.
         let loose = PriorWitness {
-            covariance: Matrix3::identity() * 0.2f64.powi(2),
+            prediction: Matrix3::identity() * 0.2f64.powi(2),
             ..tight
         };
         assert_eq!(loose.check(&Vector3::x(), &thresholds), Check::Unchecked);
@@ -409,5 +435,25 @@ mod tests {
             ..tight
         };
         assert_eq!(moved.check(&Vector3::x(), &thresholds), Check::Contradicted);
+    }
+
+    #[test]
+    fn a_plane_far_vaguer_than_the_prediction_cannot_pull_it_off() {
+        let thresholds = Thresholds::new(1e-3, 1e-3);
+        // Its MDB (0.64 m) is far beyond what the check allows (0.1 m), but the filter takes
+        // 0.25 % of it: 1.6 mm, under the prediction's 5 mm.
+        let vague = PriorWitness {
+            difference: Vector3::new(0.05, 0.0, 0.0),
+            prediction: Matrix3::identity() * 0.005f64.powi(2),
+            solution: Matrix3::identity() * 0.1f64.powi(2),
+            max_mdb: 0.1,
+        };
+        assert_eq!(vague.check(&Vector3::x(), &thresholds), Check::Outweighed);
+        // With the prediction at 3 cm the filter would take 8 % of a 0.67 m fault: 5.5 cm.
+        let surer = PriorWitness {
+            prediction: Matrix3::identity() * 0.03f64.powi(2),
+            ..vague
+        };
+        assert_eq!(surer.check(&Vector3::x(), &thresholds), Check::Unchecked);
     }
 }
