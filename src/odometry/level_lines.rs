@@ -25,11 +25,8 @@ pub(crate) struct LevelLineParameters {
     pub building: Building,
     /// A line this close to the body origin's level (m) may be anything.
     pub min_depth_m: f64,
-    /// The other scanner's beams in the line's bearing must all reach at least this much
-    /// further out (m, horizontally) for the line not to be on a wall.
-    pub wall_margin_m: f64,
-    /// Half-width of the bearing the other scanner's beams are looked for in, radians.
-    pub bearing_half_width_rad: f64,
+    /// What the other scanner's beams must do for the line not to be on a wall.
+    pub overshoot: Overshoot,
     /// How far from level a building's floors are taken to be, rad: the plane's normal sigma.
     pub tilt_sigma_rad: f64,
 }
@@ -78,10 +75,11 @@ fn level_plane(
     if depth.abs() < parameters.min_depth_m {
         return None;
     }
-    let horizontal = line.centroid - down * depth;
-    let reach = horizontal.norm();
-    let other = &scans[1 - scanner];
-    if !overshot(other, &down, &horizontal, reach, parameters) {
+    let reach = (line.centroid - down * depth).norm();
+    if !parameters
+        .overshoot
+        .passes(&scans[1 - scanner], &down, &line.centroid)
+    {
         return None;
     }
     let normal = down * depth.signum();
@@ -106,25 +104,41 @@ fn level_plane(
     ))
 }
 
-/// Whether `scan` has beams in the bearing of `horizontal` (from the body origin, level) and
-/// every one of them reaches `wall_margin_m` beyond `reach`.
-fn overshot(
-    scan: &ScanLines,
-    down: &Vector3<f64>,
-    horizontal: &Vector3<f64>,
-    reach: f64,
-    parameters: &LevelLineParameters,
-) -> bool {
-    let mut seen = false;
-    for (distance, _) in
-        scan.beams_in_bearing(*down, horizontal / reach, parameters.bearing_half_width_rad)
-    {
-        if distance < reach + parameters.wall_margin_m {
+/// How the other scanner's beams show that a level line lies on a level surface (module
+/// doc): each of them in the line's bearing reaches past it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Overshoot {
+    /// How much further out (m, horizontally) each beam must reach.
+    pub margin_m: f64,
+    /// Half-width of the bearing the beams are looked for in, radians.
+    pub bearing_half_width_rad: f64,
+}
+
+impl Overshoot {
+    /// Whether `scan` has beams in the bearing of `point` (body axes, seen from the body
+    /// origin along the level) and every one of them reaches `margin_m` beyond it.
+    pub(crate) fn passes(
+        &self,
+        scan: &ScanLines,
+        down: &Vector3<f64>,
+        point: &Vector3<f64>,
+    ) -> bool {
+        let horizontal = point - down * point.dot(down);
+        let reach = horizontal.norm();
+        if reach <= f64::EPSILON {
             return false;
         }
-        seen = true;
+        let mut seen = false;
+        for (distance, _) in
+            scan.beams_in_bearing(*down, horizontal / reach, self.bearing_half_width_rad)
+        {
+            if distance < reach + self.margin_m {
+                return false;
+            }
+            seen = true;
+        }
+        seen
     }
-    seen
 }
 
 #[cfg(test)]
@@ -166,8 +180,10 @@ mod tests {
                     max_tilt_rad: 3f64.to_radians(),
                 },
                 min_depth_m: 0.3,
-                wall_margin_m: 0.3,
-                bearing_half_width_rad: 10f64.to_radians(),
+                overshoot: Overshoot {
+                    margin_m: 0.3,
+                    bearing_half_width_rad: 10f64.to_radians(),
+                },
                 tilt_sigma_rad: 0.003,
             };
             let mut out = Vec::new();

@@ -27,7 +27,7 @@ use crate::config::ConfigErrors;
 use crate::least_squares::{Solution, SolveError};
 use crate::sensors::{Scan, ScannerSetup};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
-use level_lines::{level_planes, LevelLineParameters};
+use level_lines::{level_planes, LevelLineParameters, Overshoot};
 use lines::{LineExtractor, LineParameters, Segment};
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
@@ -287,8 +287,7 @@ impl OdometryConfig {
         Some(LevelLineParameters {
             building,
             min_depth_m: LEVEL_LINE_MIN_DEPTH_M,
-            wall_margin_m: LEVEL_LINE_WALL_MARGIN_M,
-            bearing_half_width_rad: SINGLE_LINE_BEARING_HALF_WIDTH_DEG.to_radians(),
+            overshoot: LEVEL_SURFACE_OVERSHOOT,
             tilt_sigma_rad: SINGLE_LINE_TILT_SIGMA_RAD,
         })
     }
@@ -320,6 +319,7 @@ impl OdometryConfig {
             Some((building, vertical_sigma_rad)) => Surfaces::Building {
                 building,
                 vertical_sigma_rad,
+                level_overshoot: LEVEL_SURFACE_OVERSHOOT,
             },
             None => Surfaces::Crossing,
         };
@@ -431,14 +431,17 @@ impl OdometryEpoch {
     }
 }
 
-/// The geometry core with its reusable buffers.
 /// A level line nearer the body origin's level than this (m) may be anything.
 const LEVEL_LINE_MIN_DEPTH_M: f64 = 0.3;
-/// The other scanner's beams must overshoot a level line by this (m, horizontally) for it not
-/// to be on a wall: a few times the ranging noise and a wall's skirting.
-const LEVEL_LINE_WALL_MARGIN_M: f64 = 0.3;
 /// The bearing in which the other scanner's beams are looked for, half-width in degrees.
 const SINGLE_LINE_BEARING_HALF_WIDTH_DEG: f64 = 10.0;
+/// What shows a level line to lie on a level surface rather than on a wall: the other
+/// scanner's beams in its bearing pass it by 0.3 m, a few times the ranging noise and a wall's
+/// skirting.
+const LEVEL_SURFACE_OVERSHOOT: Overshoot = Overshoot {
+    margin_m: 0.3,
+    bearing_half_width_rad: SINGLE_LINE_BEARING_HALF_WIDTH_DEG * std::f64::consts::PI / 180.0,
+};
 /// How far the filter's vertical and a building's floor or wall may be from level or plumb
 /// together, rad: a single-line plane's tilt sigma about its line (a converged tilt is good to
 /// a milliradian or two, a floor or a wall to a few over the few metres seen).
@@ -473,6 +476,7 @@ pub struct Vertical {
     pub sigma_rad: f64,
 }
 
+/// The geometry core with its reusable buffers.
 #[derive(Debug)]
 pub struct Odometer {
     config: OdometryConfig,
