@@ -352,11 +352,29 @@ fn run_from(
     start_s: f64,
     seconds: f64,
 ) -> (Scenario, Fusion, Vec<EpochRecord>) {
+    run_at_rate(name, seed, start_s, seconds, 1.0)
+}
+
+/// As `run_from`, with epochs at `epoch_rate_hz`; above 4 Hz the scanners send 10 scans a
+/// second, as the lab's 10 Hz rows have them.
+fn run_at_rate(
+    name: &str,
+    seed: u64,
+    start_s: f64,
+    seconds: f64,
+    epoch_rate_hz: f64,
+) -> (Scenario, Fusion, Vec<EpochRecord>) {
     let mut scenario = Scenario::builtin(name).unwrap();
     scenario.duration_s = start_s + seconds;
+    if epoch_rate_hz > 4.0 {
+        for scanner in &mut scenario.scanners {
+            scanner.skip = 3;
+        }
+    }
     let mut simulator = Simulator::with_seed(&scenario, seed).unwrap();
     let mut settings = FusionSettings::default();
     settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
+    settings.fusion.epoch_rate_hz = epoch_rate_hz;
     let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
     let mut records = Vec::new();
     while let Some(event) = simulator.next_event() {
@@ -532,4 +550,21 @@ fn a_floor_far_vaguer_than_the_filter_does_not_hold_the_estimate_in_doubt() {
 fn a_still_start_takes_no_ceiling_from_a_wall_and_a_pillar_face_behind_it() {
     let (scenario, fusion, _) = run_from("random-room-134", 134, 0.0, 30.0);
     assert_velocity_honest(&scenario, &fusion, 0.05);
+}
+
+/// Random room 54 (the paper's rig, still start) at 10 Hz: when the platform moved off, a
+/// rotation the filter learnt set its pitch-rate bias 3 mrad/s off, and the pitch it then held
+/// in doubt was released by lone planes each far vaguer than one epoch's prediction; at ten
+/// epochs a second their pulls add up. Judged per epoch, the estimate was usable 30 s in with
+/// a velocity 4 m/s off; judged over the second, it stays in doubt.
+#[test]
+fn at_10_hz_a_vague_plane_is_outweighed_only_over_a_second_of_epochs() {
+    let (scenario, fusion, _) = run_at_rate("random-room-54", 54, 0.0, 30.0, 10.0);
+    let estimate = fusion.estimate();
+    let (error, sigma) = velocity_error_and_sigma(&scenario, &fusion);
+    let honest = (0..3).all(|k| error[k].abs() <= 3.0 * sigma[k]);
+    assert!(
+        honest || !estimate.converged,
+        "usable with error {error:?}, sigma {sigma:?}"
+    );
 }
