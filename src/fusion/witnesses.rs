@@ -194,8 +194,9 @@ struct PriorWitness {
 /// The time over which a steady fault's pulls add up before the estimate is judged against
 /// the prediction again, s: the second the lone-plane detection speeds are given over. At 10 Hz
 /// a plane that can pull each epoch by a tenth of the prediction's sigma pulls the estimate by
-/// a sigma in that second; held to the pull of one epoch, random room 54 at 10 Hz took a gyro
-/// bias 3 mrad/s off for checked and sent velocities 4 m/s off as usable.
+/// a sigma in that second. Held to the pull of one epoch, random room 54 at 10 Hz released the
+/// pitch it held in doubt while its gyro bias was 3 mrad/s off, and sent velocities 2-4 m/s
+/// off as usable.
 const OUTWEIGHED_BASELINE_S: f64 = 1.0;
 
 fn epochs_per_baseline(interval_s: f64) -> f64 {
