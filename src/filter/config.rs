@@ -134,9 +134,10 @@ pub struct FilterConfig {
     /// Gyro bias sigma of a start in motion, rad/s: the mean rate is motion, not bias.
     pub moving_start_sigma_gyro_bias: f64,
     /// The estimate counts as converged, and may go to the autopilot with a quality above 0,
-    /// once this many relative poses have been fused since the start or a restart: the first
-    /// ones linearise about a guessed velocity and tilt, and their covariance is not yet to
-    /// be believed. An axis no surface observes stays uncertain after that, and says so.
+    /// once this many relative poses have been fused since the start or a restart, spanning
+    /// as many of the paper's 1 s epochs at faster rates: the first ones linearise about a
+    /// guessed velocity and tilt, and their covariance is not yet to be believed. An axis no
+    /// surface observes stays uncertain after that, and says so.
     pub converged_after_epochs: u32,
     /// A speed above this (m/s) is taken as a diverged filter, which then restarts: set it
     /// above the platform's top speed. A velocity no surface observes runs off, honestly

@@ -212,6 +212,8 @@ pub struct Eskf {
     converged: bool,
     /// Relative poses fused since the last (re)start.
     fused_since_start: u32,
+    /// The reference time of the first of them.
+    first_fused_ref: Option<f64>,
     /// Every sample and every `zupt_interval_s` part of the current alignment window looked
     /// still.
     window_still: bool,
@@ -298,6 +300,7 @@ impl Eskf {
             guard: DivergenceGuard::new(&config),
             converged: false,
             fused_since_start: 0,
+            first_fused_ref: None,
             window_still: true,
             first_part: None,
             resume: None,
@@ -704,13 +707,14 @@ impl Eskf {
 
     /// Drops what ties the filter to earlier epochs: the clone, the carried noise, the
     /// zero-motion window, the divergence guard's history and the convergence.
-    fn forget_epochs(&mut self) {
+    pub(super) fn forget_epochs(&mut self) {
         self.clone = None;
         self.carried = None;
         self.zero_motion = None;
         self.guard.clear();
         self.converged = false;
         self.fused_since_start = 0;
+        self.first_fused_ref = None;
     }
 
     fn count_reset(&mut self, reason: ResetReason) {

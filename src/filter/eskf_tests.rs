@@ -1189,3 +1189,35 @@ fn a_floor_the_filter_disputes_is_not_taken_for_level() {
     let level = fresh().update_level_directions(&floor(0.003)).unwrap();
     assert!(level.accepted, "{level:?}");
 }
+
+/// How many epochs at `interval_s` the filter fuses before its estimate counts as converged.
+fn epochs_to_converge(interval_s: f64) -> usize {
+    let trajectory = Circle::default();
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let mut filter = start_at_truth(FilterConfig::default(), &trajectory, 0.0);
+    // As a start or a restart leaves it.
+    filter.forget_epochs();
+    let mut t = 0.0;
+    for epoch in 1..=100 {
+        filter.clone_pose().unwrap();
+        feed(
+            &mut filter,
+            &trajectory.imu_samples(t, t + interval_s, 100.0, true),
+        );
+        let pose = measured_relative_pose(&trajectory, t, t + interval_s, 1e-4, 1e-3, &mut rng);
+        assert!(filter.update_relative_pose(&pose).unwrap().accepted);
+        t += interval_s;
+        if filter.estimate().converged {
+            return epoch;
+        }
+    }
+    usize::MAX
+}
+
+#[test]
+fn faster_epochs_converge_over_as_many_seconds_not_as_few_epochs() {
+    assert_eq!(epochs_to_converge(1.0), 3);
+    // Three 1 s epochs span 3 s from the first one's reference; at 10 Hz as long takes ~21.
+    let at_10_hz = epochs_to_converge(0.1);
+    assert!((20..=22).contains(&at_10_hz), "{at_10_hz} epochs");
+}

@@ -86,6 +86,7 @@ impl Eskf {
         self.end_stationary_start();
         self.converged = false;
         self.fused_since_start = 0;
+        self.first_fused_ref = None;
         // The zero-motion updates were wrong by at most the velocity the odometry saw (twice
         // its mean, for margin), and that error came from a tilt and an accelerometer bias
         // that turned it into velocity over the epoch.
