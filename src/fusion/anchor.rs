@@ -56,6 +56,8 @@ pub(super) struct Anchored {
     rotation: Option<UnitQuaternion<f64>>,
     prior: Vector3<f64>,
     prior_covariance: Matrix3<f64>,
+    /// Matches the epoch left out of its own solves.
+    left_out: Vec<usize>,
     pub unobservable: Vec<Vector3<f64>>,
 }
 
@@ -90,6 +92,7 @@ impl Anchored {
             rotation,
             prior: prior.translation,
             prior_covariance: prior.translation_covariance,
+            left_out: epoch.excluded.clone(),
             unobservable: Vec::with_capacity(unobservable.len()),
         };
         for direction in unobservable {
@@ -141,6 +144,8 @@ impl Anchored {
 
     /// The anchored displacement without the matches in `excluded`.
     pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
+        let mut excluded = excluded.to_vec();
+        excluded.extend(&self.left_out);
         solve_displacement(
             &self.previous,
             &self.current,
@@ -148,7 +153,7 @@ impl Anchored {
             self.rotation.as_ref(),
             &self.prior,
             &self.prior_covariance,
-            excluded,
+            &excluded,
         )
     }
 }

@@ -64,9 +64,12 @@ impl Fusion {
             (false, None) => 0,
         };
         let mut noise_maps = Vec::new();
-        if let Some(reference) = solvable.filter(|_| confirmed) {
-            record.t_previous = Some(reference.planes.t_ref);
-            noise_maps = self.solve_and_fuse(reference, &current, &mut record);
+        match solvable.filter(|_| confirmed) {
+            Some(reference) => {
+                record.t_previous = Some(reference.planes.t_ref);
+                noise_maps = self.solve_and_fuse(reference, &current, &mut record);
+            }
+            None => self.level_drift.forget(),
         }
         record.level_surfaces = self.level_from_building(&current.planes);
         if self.config.confirms_planes() {
@@ -180,10 +183,17 @@ impl Fusion {
     ) -> Vec<PlaneNoiseMap> {
         let previous = &reference.planes;
         let Some(prior) = self.odometer_prior(previous.t_ref, current.t_ref) else {
+            self.level_drift.forget();
             record.outcome = EpochOutcome::Reference;
             return Vec::new();
         };
-        let epoch = self.odometer.solve(previous, current, &prior);
+        let mut epoch = self.odometer.solve(previous, current, &prior);
+        let wandering = self
+            .level_drift
+            .wandering(previous, current, &epoch.matches);
+        if !wandering.is_empty() {
+            epoch = self.odometer.resolve(previous, current, &epoch, &wandering);
+        }
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
         let cleared = self.clear(previous, current, &epoch, &report, anchored.as_ref());
@@ -251,14 +261,14 @@ impl Fusion {
         let odometer = &self.odometer;
         let mut rotation = |excluded: &[usize]| {
             odometer
-                .resolve(previous, current, epoch, excluded)
+                .resolve(previous, current, epoch, &left_out(epoch, excluded))
                 .rotation
         };
         let mut displacement = |excluded: &[usize]| match anchored {
             Some(anchored) => anchored.solve(excluded),
             None => {
                 odometer
-                    .resolve(previous, current, epoch, excluded)
+                    .resolve(previous, current, epoch, &left_out(epoch, excluded))
                     .displacement
             }
         };
@@ -306,7 +316,7 @@ impl Fusion {
             previous,
             current,
             epoch,
-            &report.excluded,
+            &left_out(epoch, &report.excluded),
             [rotation.as_ref(), displacement.as_ref()],
         );
         let mut unobservable = anchored.map_or_else(Vec::new, |a| a.unobservable.clone());
@@ -418,6 +428,13 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> RelativePos
     }
 }
 
+/// The matches `excluded` and those the epoch itself left out of its solves.
+fn left_out(epoch: &OdometryEpoch, excluded: &[usize]) -> Vec<usize> {
+    let mut all = epoch.excluded.clone();
+    all.extend(excluded.iter().filter(|k| !epoch.excluded.contains(k)));
+    all
+}
+
 /// Matches, exclusions, anchored directions and the integrity evidence of a solved epoch.
 fn describe_solve(
     record: &mut EpochRecord,
@@ -435,7 +452,15 @@ fn describe_solve(
         .filter_map(|&k| epoch.matches.get(k))
         .map(|m| current.planes[m.current].id)
         .collect();
-    record.used = record.matched - record.excluded_planes.len();
+    record.wandering_level_planes = epoch
+        .excluded
+        .iter()
+        .filter_map(|&k| epoch.matches.get(k))
+        .map(|m| current.planes[m.current].id)
+        .collect();
+    record.used = record
+        .matched
+        .saturating_sub(record.excluded_planes.len() + record.wandering_level_planes.len());
     record.unobservable_displacement = anchored
         .map(|a| a.unobservable.iter().map(|&u| u.into()).collect())
         .unwrap_or_default();
@@ -477,6 +502,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         matched: 0,
         used: 0,
         excluded_planes: Vec::new(),
+        wandering_level_planes: Vec::new(),
         unconfirmed_planes: 0,
         unobservable_displacement: Vec::new(),
         lone_directions: Vec::new(),

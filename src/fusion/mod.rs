@@ -13,6 +13,7 @@ pub(crate) mod clock;
 pub(crate) mod config;
 mod confirmation;
 mod epoch;
+mod level_drift;
 pub mod record;
 mod shared_noise;
 mod witnesses;
@@ -75,6 +76,8 @@ pub struct Fusion {
     current: EpochPlanes,
     /// Epochs back to the plane confirmation's baseline.
     recent: confirmation::RecentEpochs,
+    /// Level planes followed from epoch to epoch, to leave out those whose height wanders.
+    level_drift: level_drift::LevelDrift,
     integrity: Option<IntegrityStatus>,
     /// Directions fused on the word of a lone plane nothing could check yet: until they are
     /// checked the estimate is not converged.
@@ -104,6 +107,7 @@ impl Fusion {
             reference: None,
             current: EpochPlanes::default(),
             recent: confirmation::RecentEpochs::default(),
+            level_drift: level_drift::LevelDrift::default(),
             integrity: None,
             provisional: witnesses::Provisional::default(),
             filter_converged: false,

@@ -118,6 +118,9 @@ pub struct EpochRecord {
     pub used: usize,
     /// Ids (in this epoch's planes) of the planes integrity excluded.
     pub excluded_planes: Vec<usize>,
+    /// Ids of the level planes left out because their height wandered against the other level
+    /// planes' (`fusion/level_drift.rs`): a line on a low face taken for a floor.
+    pub wandering_level_planes: Vec<usize>,
     /// Planes left out for want of confirmation (`fusion.plane_confirmation_s`): candidates
     /// no plane of the epoch that far back agrees with, whose lines went to other pairs; and,
     /// while the filter's poses do not reach that far back yet, every plane (none is matched).

@@ -1,0 +1,309 @@
+//! Level planes whose height wanders against the others'. The pitched scanner lays a level line
+//! on the face of a low box square to it just as on a floor, and the other scanner's beams pass
+//! over both (`odometry::level_lines`), so the face is taken for a level surface. Hovering, the
+//! two read the same; moving towards the face by `d`, the line on it climbs by `d` times the
+//! tangent of the beams' depression, a centimetre an epoch at a walk. Each epoch that error is
+//! below what the parity test can see beside the floor, but it has the same sign epoch after
+//! epoch, and the filter averaged it into a vertical velocity 5 mm/s off at a 1 mm/s sigma
+//! (random room 58).
+//!
+//! Between two epochs every level surface's distance changes by the same vertical displacement,
+//! so a level plane's change less the mean change of the other level planes matched in the
+//! epoch is the plane's own error, whatever the filter knows (the others: those whose change is
+//! near the epoch's median, so that one wrong match does not move every plane's reference). Summed along the plane's matches
+//! it stays within the line noise for a floor, a ceiling or a table top (the sum of a plane's
+//! changes is its last height less its first, and so is the sum of the others' means while
+//! they stay the same planes), and grows with the motion for a face. A plane whose sum leaves
+//! that noise is left out of the solves, and of the others' means, from then on, as long as it
+//! keeps being matched. With fewer than three level planes the others are no majority to judge
+//! by, and nothing is summed.
+
+use nalgebra::Vector3;
+
+use crate::odometry::matching::PlaneMatch;
+use crate::odometry::planes::Plane;
+use crate::odometry::EpochPlanes;
+
+/// Fewest level planes matched in an epoch for the others to be a majority.
+const MIN_LEVEL_PLANES: usize = 3;
+/// A plane is level when its normal is this close to the vertical (cosine, 5 degrees).
+const LEVEL_COSINE: f64 = 0.996;
+/// How far from the median change of the epoch's level planes a plane's own may be for it to
+/// judge the others, m: a match between two box tops of different heights would move every
+/// other plane's mean by its step.
+const AGREE_M: f64 = 0.015;
+/// Smallest summed change that condemns a plane, m: a line's centroid of a few dozen beams of
+/// a 1-3 cm range noise is good to a few millimetres, and floors are flat to about a
+/// centimetre. A plane's changes sum to its last height less its first, so the line noise does
+/// not add up from epoch to epoch.
+const MIN_WANDER_M: f64 = 0.03;
+/// Sigma per epoch of what does add up, m: the others' mean as planes come and go, and a
+/// floor's unevenness under a line that moves along it.
+const STEP_SIGMA_M: f64 = 0.001;
+/// How many sigmas of that random walk a plane's summed change may reach.
+const GATE_SIGMAS: f64 = 4.0;
+
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct Track {
+    /// Summed change of the plane's height less the other level planes' mean, m.
+    wander_m: f64,
+    steps: u32,
+    condemned: bool,
+}
+
+impl Track {
+    fn step(mut self, change_m: f64) -> Self {
+        self.wander_m += change_m;
+        self.steps += 1;
+        let gate = (GATE_SIGMAS * STEP_SIGMA_M * f64::from(self.steps).sqrt()).max(MIN_WANDER_M);
+        self.condemned |= self.wander_m.abs() > gate;
+        self
+    }
+}
+
+/// The level planes' tracks, by plane id of the last solved epoch.
+#[derive(Debug, Default)]
+pub(super) struct LevelDrift {
+    tracks: Vec<Option<Track>>,
+}
+
+impl LevelDrift {
+    /// Nothing was matched this epoch: no track goes on.
+    pub(super) fn forget(&mut self) {
+        self.tracks.clear();
+    }
+
+    /// Follows the level planes through `matches` (previous -> current) and returns the
+    /// indices into `matches` of those whose height has wandered.
+    pub(super) fn wandering(
+        &mut self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        matches: &[PlaneMatch],
+    ) -> Vec<usize> {
+        let level: Vec<(usize, f64)> = matches
+            .iter()
+            .enumerate()
+            .filter_map(|(k, m)| {
+                let before = height(&previous.planes[m.previous], previous.down?)?;
+                let after = height(&current.planes[m.current], current.down?)?;
+                Some((k, after - before))
+            })
+            .collect();
+        let mut tracks = vec![None; current.planes.len()];
+        let before: Vec<Track> = level
+            .iter()
+            .map(|&(k, _)| {
+                let previous = matches[k].previous;
+                self.tracks
+                    .get(previous)
+                    .copied()
+                    .flatten()
+                    .unwrap_or_default()
+            })
+            .collect();
+        let judges: Vec<f64> = level
+            .iter()
+            .zip(&before)
+            .filter(|(_, track)| !track.condemned)
+            .map(|(&(_, change), _)| change)
+            .collect();
+        let common = median(&judges);
+        let mut wandering = Vec::new();
+        for (index, &(k, change)) in level.iter().enumerate() {
+            let others: Vec<f64> = level
+                .iter()
+                .zip(&before)
+                .enumerate()
+                .filter(|&(other, (&(_, change), track))| {
+                    other != index && !track.condemned && (change - common).abs() <= AGREE_M
+                })
+                .map(|(_, (&(_, change), _))| change)
+                .collect();
+            let track = if others.len() + 1 >= MIN_LEVEL_PLANES {
+                before[index].step(change - mean(&others))
+            } else {
+                before[index]
+            };
+            if track.condemned {
+                wandering.push(k);
+            }
+            tracks[matches[k].current] = Some(track);
+        }
+        self.tracks = tracks;
+        wandering
+    }
+}
+
+/// A level plane's height along `down`, up to the body's own: its distance, signed by the side
+/// it lies on. `None` for a plane that is not level.
+fn height(plane: &Plane, down: Vector3<f64>) -> Option<f64> {
+    let cosine = plane.normal.dot(&down);
+    (cosine.abs() >= LEVEL_COSINE).then(|| plane.rho * cosine.signum())
+}
+
+/// The middle value; 0 for none.
+fn median(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    match sorted.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => sorted[n / 2],
+        n => 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]),
+    }
+}
+
+fn mean(values: &[f64]) -> f64 {
+    values.iter().sum::<f64>() / values.len() as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Matrix3;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    use super::*;
+    use crate::odometry::planes::LineRef;
+    use crate::odometry::uncertainty::PlaneUncertainty;
+
+    /// Level planes at `heights` (m below the body, negative above), seen through one line
+    /// each, with the body's vertical along z.
+    fn epoch(heights: &[f64]) -> EpochPlanes {
+        let planes = heights
+            .iter()
+            .enumerate()
+            .map(|(id, &h)| {
+                Plane::through_one_line(
+                    LineRef {
+                        scanner: 1,
+                        segment: id,
+                    },
+                    Vector3::z() * h.signum(),
+                    h.abs(),
+                    PlaneUncertainty {
+                        normal_covariance: Matrix3::zeros(),
+                        sigma_normal: 0.0,
+                        sigma_rho: 0.01,
+                    },
+                    1.0,
+                )
+            })
+            .map(|mut plane| {
+                plane.id = plane.lines[0].segment;
+                plane
+            })
+            .collect();
+        EpochPlanes {
+            planes,
+            down: Some(Vector3::z()),
+            ..EpochPlanes::default()
+        }
+    }
+
+    fn in_order(n: usize) -> Vec<PlaneMatch> {
+        (0..n)
+            .map(|k| PlaneMatch {
+                previous: k,
+                current: k,
+                distance_squared: 0.0,
+            })
+            .collect()
+    }
+
+    /// Epochs of a body climbing 2 cm each over a floor (1.8 m down, seen twice), a table top
+    /// and a ceiling, and a face whose line climbs `face_step_m` more each epoch; the level
+    /// lines read with `noise_m` of noise. Returns the epochs each plane was left out in.
+    fn left_out(epochs: usize, face_step_m: f64, noise_m: f64) -> [usize; 5] {
+        let mut rng = ChaCha8Rng::seed_from_u64(58);
+        let noise = Normal::new(0.0, noise_m).unwrap();
+        let mut drift = LevelDrift::default();
+        let mut counts = [0; 5];
+        let heights = |k: usize, rng: &mut ChaCha8Rng| -> Vec<f64> {
+            let climb = 0.02 * k as f64;
+            [1.8, 1.8, 0.9, -1.2]
+                .iter()
+                .map(|h| h + climb)
+                .chain([1.0 + climb - face_step_m * k as f64])
+                .map(|h| h + noise.sample(rng))
+                .collect()
+        };
+        let mut previous = epoch(&heights(0, &mut rng));
+        for k in 1..=epochs {
+            let current = epoch(&heights(k, &mut rng));
+            for m in drift.wandering(&previous, &current, &in_order(5)) {
+                counts[m] += 1;
+            }
+            previous = current;
+        }
+        counts
+    }
+
+    #[test]
+    fn a_face_climbing_a_centimetre_and_a_half_an_epoch_is_left_out_from_the_second() {
+        assert_eq!(left_out(10, 0.016, 0.0), [0, 0, 0, 0, 9]);
+    }
+
+    #[test]
+    fn level_planes_reading_their_line_noise_are_never_left_out_in_ten_thousand_epochs() {
+        assert_eq!(left_out(10_000, 0.0, 0.004), [0; 5]);
+    }
+
+    #[test]
+    fn at_10_hz_a_face_climbing_a_millimetre_and_a_half_an_epoch_is_left_out_within_3_s() {
+        let counts = left_out(50, 0.0015, 0.002);
+        assert_eq!(counts[..4], [0; 4]);
+        assert!(counts[4] >= 20, "{counts:?}");
+    }
+
+    #[test]
+    fn the_line_noise_does_not_hide_a_face_for_long() {
+        let counts = left_out(20, 0.015, 0.002);
+        assert_eq!(counts[..4], [0; 4]);
+        assert!(counts[4] >= 16, "{counts:?}");
+    }
+
+    #[test]
+    fn one_match_between_tops_of_two_heights_moves_no_other_plane() {
+        let mut drift = LevelDrift::default();
+        let tops = |k: i32| if k < 3 { 0.64 } else { 0.58 };
+        let mut previous = epoch(&[1.8, 1.8, 0.64, -1.2]);
+        for k in 1..=20 {
+            let current = epoch(&[1.8, 1.8, tops(k), -1.2]);
+            let wandering = drift.wandering(&previous, &current, &in_order(4));
+            let expected: &[usize] = if k < 3 { &[] } else { &[2] };
+            assert_eq!(wandering, expected, "epoch {k}");
+            previous = current;
+        }
+    }
+
+    #[test]
+    fn with_two_level_planes_there_is_no_majority_and_none_is_left_out() {
+        let mut drift = LevelDrift::default();
+        let mut previous = epoch(&[1.8, 1.0]);
+        for k in 1..=10 {
+            let current = epoch(&[1.8, 1.0 - 0.05 * f64::from(k)]);
+            assert!(drift
+                .wandering(&previous, &current, &in_order(2))
+                .is_empty());
+            previous = current;
+        }
+    }
+
+    #[test]
+    fn a_track_ends_with_its_matches() {
+        let mut drift = LevelDrift::default();
+        let mut previous = epoch(&[1.8, 1.8, 0.9, 1.0]);
+        for k in 1..=3 {
+            let current = epoch(&[1.8, 1.8, 0.9, 1.0 - 0.03 * f64::from(k)]);
+            drift.wandering(&previous, &current, &in_order(4));
+            previous = current;
+        }
+        assert_eq!(drift.wandering(&previous, &previous, &in_order(4)), [3]);
+        drift.forget();
+        assert!(drift
+            .wandering(&previous, &previous, &in_order(4))
+            .is_empty());
+    }
+}
