@@ -445,19 +445,8 @@ fn describe_solve(
     report: EpochReport,
 ) {
     record.matched = epoch.matches.len();
-    // Anchors sit after the real matches and have no plane id.
-    record.excluded_planes = cleared
-        .excluded
-        .iter()
-        .filter_map(|&k| epoch.matches.get(k))
-        .map(|m| current.planes[m.current].id)
-        .collect();
-    record.wandering_level_planes = epoch
-        .excluded
-        .iter()
-        .filter_map(|&k| epoch.matches.get(k))
-        .map(|m| current.planes[m.current].id)
-        .collect();
+    record.excluded_planes = plane_ids(&cleared.excluded, epoch, current);
+    record.wandering_level_planes = plane_ids(&epoch.excluded, epoch, current);
     record.used = record
         .matched
         .saturating_sub(record.excluded_planes.len() + record.wandering_level_planes.len());
@@ -467,6 +456,16 @@ fn describe_solve(
     record.lone_directions = cleared.lone.described();
     record.status = Some(report.status.clone());
     record.integrity = Some(report);
+}
+
+/// The current epoch's ids of the planes in `matches` (indices into the epoch's matches).
+fn plane_ids(matches: &[usize], epoch: &OdometryEpoch, current: &EpochPlanes) -> Vec<usize> {
+    // Anchors sit after the real matches and have no plane id.
+    matches
+        .iter()
+        .filter_map(|&k| epoch.matches.get(k))
+        .map(|m| current.planes[m.current].id)
+        .collect()
 }
 
 /// Directions of a solve's estimate that a fault on a plane alone in observing them could move
