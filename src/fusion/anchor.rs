@@ -56,8 +56,8 @@ pub(super) struct Anchored {
     rotation: Option<UnitQuaternion<f64>>,
     prior: Vector3<f64>,
     prior_covariance: Matrix3<f64>,
-    /// Matches the epoch left out of its own solves.
-    left_out: Vec<usize>,
+    /// The matches the epoch left out of its own solves.
+    epoch_excluded: Vec<usize>,
     pub unobservable: Vec<Vector3<f64>>,
 }
 
@@ -92,7 +92,7 @@ impl Anchored {
             rotation,
             prior: prior.translation,
             prior_covariance: prior.translation_covariance,
-            left_out: epoch.excluded.clone(),
+            epoch_excluded: epoch.excluded.clone(),
             unobservable: Vec::with_capacity(unobservable.len()),
         };
         for direction in unobservable {
@@ -145,7 +145,7 @@ impl Anchored {
     /// The anchored displacement without the matches in `excluded`.
     pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
         let mut excluded = excluded.to_vec();
-        excluded.extend(&self.left_out);
+        excluded.extend(&self.epoch_excluded);
         solve_displacement(
             &self.previous,
             &self.current,

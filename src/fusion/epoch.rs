@@ -261,14 +261,14 @@ impl Fusion {
         let odometer = &self.odometer;
         let mut rotation = |excluded: &[usize]| {
             odometer
-                .resolve(previous, current, epoch, &left_out(epoch, excluded))
+                .resolve(previous, current, epoch, excluded)
                 .rotation
         };
         let mut displacement = |excluded: &[usize]| match anchored {
             Some(anchored) => anchored.solve(excluded),
             None => {
                 odometer
-                    .resolve(previous, current, epoch, &left_out(epoch, excluded))
+                    .resolve(previous, current, epoch, excluded)
                     .displacement
             }
         };
@@ -316,7 +316,7 @@ impl Fusion {
             previous,
             current,
             epoch,
-            &left_out(epoch, &report.excluded),
+            &epoch.excluding(&report.excluded),
             [rotation.as_ref(), displacement.as_ref()],
         );
         let mut unobservable = anchored.map_or_else(Vec::new, |a| a.unobservable.clone());
@@ -426,13 +426,6 @@ fn measurement(t_ref: f64, t: f64, cleared: &Cleared, scale: f64) -> RelativePos
         translation,
         shared: None,
     }
-}
-
-/// The matches `excluded` and those the epoch itself left out of its solves.
-fn left_out(epoch: &OdometryEpoch, excluded: &[usize]) -> Vec<usize> {
-    let mut all = epoch.excluded.clone();
-    all.extend(excluded.iter().filter(|k| !epoch.excluded.contains(k)));
-    all
 }
 
 /// Matches, exclusions, anchored directions and the integrity evidence of a solved epoch.

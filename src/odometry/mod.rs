@@ -418,6 +418,13 @@ pub struct OdometryEpoch {
 }
 
 impl OdometryEpoch {
+    /// `excluded` and the matches this epoch already left out of its solves.
+    pub(crate) fn excluding(&self, excluded: &[usize]) -> Vec<usize> {
+        let mut all = self.excluded.clone();
+        all.extend_from_slice(excluded);
+        all
+    }
+
     /// The solved relative pose, when both solves succeeded.
     pub fn relative_pose(&self) -> Option<RelativePose> {
         let rotation = self.rotation.as_ref().ok()?;
@@ -680,7 +687,8 @@ impl Odometer {
         self.solve_matched(previous, current, matches, prior, &[])
     }
 
-    /// Solves `epoch`'s matches again without the matches listed in `excluded`.
+    /// Solves `epoch`'s matches again without the matches listed in `excluded`, nor those
+    /// `epoch` already left out.
     pub fn resolve(
         &self,
         previous: &EpochPlanes,
@@ -693,7 +701,7 @@ impl Odometer {
             current,
             epoch.matches.clone(),
             &epoch.prior,
-            excluded,
+            &epoch.excluding(excluded),
         )
     }
 
