@@ -188,9 +188,11 @@ impl Fusion {
             return Vec::new();
         };
         let mut epoch = self.odometer.solve(previous, current, &prior);
+        let buildings =
+            [previous, current].map(|planes| self.odometer.config().building(planes.down));
         let wandering = self
             .level_drift
-            .wandering(previous, current, &epoch.matches);
+            .wandering(previous, current, &epoch.matches, buildings);
         if !wandering.is_empty() {
             epoch = self.odometer.resolve(previous, current, &epoch, &wandering);
         }

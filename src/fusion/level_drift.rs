@@ -20,16 +20,12 @@
 //! long as it keeps being matched. With fewer than three level planes the others are no
 //! majority to judge by, and nothing is summed.
 
-use nalgebra::Vector3;
-
 use crate::odometry::matching::PlaneMatch;
-use crate::odometry::planes::Plane;
+use crate::odometry::planes::{Building, Plane};
 use crate::odometry::EpochPlanes;
 
 /// Fewest level planes matched in an epoch for the others to be a majority.
 const MIN_LEVEL_PLANES: usize = 3;
-/// A plane is level when its normal is this close to the vertical (cosine, 5 degrees).
-const LEVEL_COSINE: f64 = 0.996;
 /// How far from the median change of the epoch's level planes a plane's own may be for it to
 /// judge the others, m: a match between two box tops of different heights would move every
 /// other plane's mean by its step.
@@ -88,58 +84,58 @@ impl LevelDrift {
     }
 
     /// Follows the level planes through `matches` (previous -> current) and returns the
-    /// indices into `matches` of those whose height has wandered.
+    /// indices into `matches` of those whose height has wandered; `buildings` are the two
+    /// epochs' (what is level in each), none where the scene is not a building.
     pub(super) fn wandering(
         &mut self,
         previous: &EpochPlanes,
         current: &EpochPlanes,
         matches: &[PlaneMatch],
+        buildings: [Option<Building>; 2],
     ) -> Vec<usize> {
         // `max` also turns a NaN interval into none.
         let interval_s = (current.t_ref - previous.t_ref).max(0.0);
-        let level: Vec<(usize, f64)> = matches
+        let [Some(before_building), Some(after_building)] = buildings else {
+            self.forget();
+            return Vec::new();
+        };
+        let level: Vec<(usize, f64, Track)> = matches
             .iter()
             .enumerate()
             .filter_map(|(k, m)| {
-                let before = height(&previous.planes[m.previous], previous.down?)?;
-                let after = height(&current.planes[m.current], current.down?)?;
-                Some((k, after - before))
+                let before = height(&previous.planes[m.previous], &before_building)?;
+                let after = height(&current.planes[m.current], &after_building)?;
+                let track = self.tracks.get(m.previous).copied().flatten();
+                Some((k, after - before, track.unwrap_or_default()))
             })
             .collect();
+        let judging: Vec<f64> = level
+            .iter()
+            .filter(|(_, _, track)| !track.condemned)
+            .map(|&(_, change, _)| change)
+            .collect();
+        let common = median(&judging);
+        let judges =
+            |change: f64, track: &Track| !track.condemned && (change - common).abs() <= AGREE_M;
+        let (sum, count) = level
+            .iter()
+            .filter(|(_, change, track)| judges(*change, track))
+            .fold((0.0, 0usize), |(sum, count), (_, change, _)| {
+                (sum + change, count + 1)
+            });
         let mut tracks = vec![None; current.planes.len()];
-        let before: Vec<Track> = level
-            .iter()
-            .map(|&(k, _)| {
-                let previous = matches[k].previous;
-                self.tracks
-                    .get(previous)
-                    .copied()
-                    .flatten()
-                    .unwrap_or_default()
-            })
-            .collect();
-        let judges: Vec<f64> = level
-            .iter()
-            .zip(&before)
-            .filter(|(_, track)| !track.condemned)
-            .map(|(&(_, change), _)| change)
-            .collect();
-        let common = median(&judges);
         let mut wandering = Vec::new();
-        for (index, &(k, change)) in level.iter().enumerate() {
-            let others: Vec<f64> = level
-                .iter()
-                .zip(&before)
-                .enumerate()
-                .filter(|&(other, (&(_, change), track))| {
-                    other != index && !track.condemned && (change - common).abs() <= AGREE_M
-                })
-                .map(|(_, (&(_, change), _))| change)
-                .collect();
-            let track = if others.len() + 1 >= MIN_LEVEL_PLANES {
-                before[index].step(change - mean(&others), interval_s)
+        for &(k, change, track) in &level {
+            // The others' mean: this plane's own change is not among them.
+            let (others_sum, others) = if judges(change, &track) {
+                (sum - change, count - 1)
             } else {
-                before[index]
+                (sum, count)
+            };
+            let track = if others + 1 >= MIN_LEVEL_PLANES {
+                track.step(change - others_sum / others as f64, interval_s)
+            } else {
+                track
             };
             if track.condemned {
                 wandering.push(k);
@@ -151,11 +147,12 @@ impl LevelDrift {
     }
 }
 
-/// A level plane's height along `down`, up to the body's own: its distance, signed by the side
-/// it lies on. `None` for a plane that is not level.
-fn height(plane: &Plane, down: Vector3<f64>) -> Option<f64> {
-    let cosine = plane.normal.dot(&down);
-    (cosine.abs() >= LEVEL_COSINE).then(|| plane.rho * cosine.signum())
+/// A level plane's height along the building's vertical, up to the body's own: its distance,
+/// signed by the side it lies on. `None` for a plane that is not level.
+fn height(plane: &Plane, building: &Building) -> Option<f64> {
+    building
+        .is_level(&plane.normal)
+        .then(|| plane.rho * plane.normal.dot(&building.down).signum())
 }
 
 /// The middle value; 0 for none.
@@ -169,16 +166,14 @@ fn median(values: &[f64]) -> f64 {
     }
 }
 
-fn mean(values: &[f64]) -> f64 {
-    values.iter().sum::<f64>() / values.len() as f64
-}
-
 #[cfg(test)]
 mod tests {
     use nalgebra::Matrix3;
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};
+
+    use nalgebra::Vector3;
 
     use super::*;
     use crate::odometry::planes::LineRef;
@@ -217,6 +212,13 @@ mod tests {
         }
     }
 
+    /// A building whose vertical is the body's z, level within 3 degrees.
+    const BUILDING: Option<Building> = Some(Building {
+        down: Vector3::new(0.0, 0.0, 1.0),
+        max_tilt_rad: 0.052,
+    });
+    const BUILDINGS: [Option<Building>; 2] = [BUILDING, BUILDING];
+
     fn in_order(n: usize) -> Vec<PlaneMatch> {
         (0..n)
             .map(|k| PlaneMatch {
@@ -239,7 +241,7 @@ mod tests {
         let mut previous = epoch(0.0, &heights(0));
         for k in 1..=epochs {
             let current = epoch(k as f64 * interval_s, &heights(k));
-            for m in drift.wandering(&previous, &current, &in_order(N)) {
+            for m in drift.wandering(&previous, &current, &in_order(N), BUILDINGS) {
                 counts[m] += 1;
             }
             previous = current;
@@ -313,12 +315,17 @@ mod tests {
         let mut previous = epoch(0.0, &[1.8, 1.8, 0.9, 1.0]);
         for k in 1..=3 {
             let current = epoch(f64::from(k), &[1.8, 1.8, 0.9, 1.0 - 0.03 * f64::from(k)]);
-            drift.wandering(&previous, &current, &in_order(4));
+            drift.wandering(&previous, &current, &in_order(4), BUILDINGS);
             previous = current;
         }
         let next = epoch(4.0, &[1.8, 1.8, 0.9, 0.91]);
-        assert_eq!(drift.wandering(&previous, &next, &in_order(4)), [3]);
+        assert_eq!(
+            drift.wandering(&previous, &next, &in_order(4), BUILDINGS),
+            [3]
+        );
         drift.forget();
-        assert!(drift.wandering(&next, &next, &in_order(4)).is_empty());
+        assert!(drift
+            .wandering(&next, &next, &in_order(4), BUILDINGS)
+            .is_empty());
     }
 }
