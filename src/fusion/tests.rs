@@ -364,6 +364,18 @@ fn run_at_rate(
     seconds: f64,
     epoch_rate_hz: f64,
 ) -> (Scenario, Fusion, Vec<EpochRecord>) {
+    run_judging(name, seed, start_s, seconds, epoch_rate_hz, |_, _, _| {})
+}
+
+/// As `run_at_rate`, handing `after_epoch` the fusion and its record after each epoch.
+fn run_judging(
+    name: &str,
+    seed: u64,
+    start_s: f64,
+    seconds: f64,
+    epoch_rate_hz: f64,
+    mut after_epoch: impl FnMut(&Scenario, &Fusion, &EpochRecord),
+) -> (Scenario, Fusion, Vec<EpochRecord>) {
     let mut scenario = Scenario::builtin(name).unwrap();
     scenario.duration_s = start_s + seconds;
     if epoch_rate_hz > 4.0 {
@@ -383,7 +395,10 @@ fn run_at_rate(
                 fusion.push_imu(sample);
             }
             SimEvent::Scan { scan, .. } if scan.t0 >= start_s => {
-                records.extend(fusion.push_scan(scan));
+                if let Some(record) = fusion.push_scan(scan) {
+                    after_epoch(&scenario, &fusion, &record);
+                    records.push(record);
+                }
             }
             _ => {}
         }
@@ -565,32 +580,25 @@ fn a_still_start_takes_no_ceiling_from_a_wall_and_a_pillar_face_behind_it() {
 /// the other level planes its height wanders, and it is left out.
 #[test]
 fn a_low_face_whose_level_line_climbs_against_the_floor_is_left_out() {
-    let mut scenario = Scenario::builtin("random-room-58").unwrap();
-    scenario.duration_s = 55.0;
-    let mut simulator = Simulator::with_seed(&scenario, 58).unwrap();
-    let mut settings = FusionSettings::default();
-    settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
-    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
-    let (mut judged, mut outside, mut left_out) = (0, 0, 0);
-    while let Some(event) = simulator.next_event() {
-        match event {
-            SimEvent::Imu(sample) => {
-                fusion.push_imu(sample);
+    let (mut judged, mut outside) = (0, 0);
+    let (_, _, records) = run_judging(
+        "random-room-58",
+        58,
+        0.0,
+        55.0,
+        1.0,
+        |scenario, fusion, record| {
+            if record.t >= 35.0 {
+                let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
+                judged += 1;
+                outside += usize::from(error.z.abs() > 3.0 * sigma.z);
             }
-            SimEvent::Scan { scan, .. } => {
-                let Some(record) = fusion.push_scan(scan) else {
-                    continue;
-                };
-                left_out += usize::from(!record.wandering_level_planes.is_empty());
-                if record.t >= 35.0 {
-                    let (error, sigma) = velocity_error_and_sigma(&scenario, &fusion);
-                    judged += 1;
-                    outside += usize::from(error.z.abs() > 3.0 * sigma.z);
-                }
-            }
-            _ => {}
-        }
-    }
+        },
+    );
+    let left_out = records
+        .iter()
+        .filter(|r| !r.wandering_level_planes.is_empty())
+        .count();
     assert!(left_out > 0, "the face was never left out");
     assert!(judged >= 19, "{judged} epochs judged");
     assert!(
