@@ -90,6 +90,46 @@ impl StationaryMeans {
     }
 }
 
+/// The specific force in navigation axes, averaged over about the last `horizon` seconds
+/// (exponentially): on average over a second or more a hovering or walking platform hardly
+/// accelerates, so this mean is gravity as the filter's attitude sees it, and its lean is the
+/// filter's tilt error. A restart after a divergence takes its tilt from it, as a start in
+/// motion does from its window, rather than keeping the tilt that may have diverged.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct RecentForce {
+    mean: Vector3<f64>,
+    seconds: f64,
+}
+
+impl RecentForce {
+    /// Adds the force `force` (navigation axes) held over `interval` seconds.
+    pub(crate) fn add(&mut self, force: &Vector3<f64>, interval: f64, horizon: f64) {
+        self.seconds += interval;
+        let share = (interval / self.seconds.min(horizon)).min(1.0);
+        self.mean += (force - self.mean) * share;
+    }
+
+    pub(crate) fn clear(&mut self) {
+        *self = Self::default();
+    }
+
+    /// `attitude` turned about a level axis so that the mean force points straight up, once the
+    /// mean spans `horizon` seconds: the heading moves only as much as a tilt of the body makes
+    /// its Euler yaw move, and a restart keeps its own.
+    pub(crate) fn levelled(
+        &self,
+        attitude: &UnitQuaternion<f64>,
+        horizon: f64,
+    ) -> Option<UnitQuaternion<f64>> {
+        if self.seconds < horizon {
+            return None;
+        }
+        // At rest the specific force is -g: up, which is -z in NED.
+        let lean = UnitQuaternion::rotation_between(&self.mean, &-Vector3::z())?;
+        Some(lean * attitude)
+    }
+}
+
 /// Zero velocity and, from the mean gyro output over the interval, zero rate:
 /// `0 - v = dv + n_v` and `mean(w_m) - b_g = db_g + n_w`, `n_w` of variance `N_g^2 / T`.
 pub(crate) fn zero_motion_rows(
@@ -124,6 +164,28 @@ pub(crate) fn zero_motion_rows(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_recent_force_levels_a_tilted_attitude_about_a_level_axis() {
+        let truth = UnitQuaternion::from_euler_angles(0.05, -0.17, 2.0);
+        let tilt_error = UnitQuaternion::from_euler_angles(0.03, -0.11, 0.0);
+        let estimate = tilt_error * truth;
+        let gravity = Vector3::new(0.0, 0.0, 9.81);
+        let mut recent = RecentForce::default();
+        for k in 0..800 {
+            // A hover's sway: accelerations that average out over the second.
+            let sway = Vector3::new(0.3, -0.2, 0.1) * (f64::from(k) * 0.157).sin();
+            let body_force = truth.inverse_transform_vector(&(sway - gravity));
+            assert!(recent.levelled(&estimate, 1.0).is_none() || k > 399);
+            recent.add(&(estimate * body_force), 0.0025, 1.0);
+        }
+        let levelled = recent.levelled(&estimate, 1.0).unwrap();
+        let error = (levelled * truth.inverse()).scaled_axis();
+        assert!(error.xy().norm() < 0.005, "{error:?}");
+        let turn = (levelled * estimate.inverse()).scaled_axis();
+        assert!(turn.z.abs() < 1e-12 && turn.norm() > 0.1, "{turn:?}");
+        assert!(RecentForce::default().levelled(&estimate, 1.0).is_none());
+    }
 
     #[test]
     fn gravity_alignment_recovers_roll_and_pitch() {

@@ -7,7 +7,7 @@
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use thiserror::Error;
 
-use super::alignment::{looks_stationary, StationaryMeans};
+use super::alignment::{looks_stationary, RecentForce, StationaryMeans};
 use super::config::FilterConfig;
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
@@ -223,6 +223,8 @@ pub struct Eskf {
     resume: Option<Resume>,
     /// When the speed prior was last fused (`apply_speed_prior`).
     last_speed_prior: Option<f64>,
+    /// What a restart levels its tilt by.
+    recent_force: RecentForce,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -305,6 +307,7 @@ impl Eskf {
             first_part: None,
             resume: None,
             last_speed_prior: None,
+            recent_force: RecentForce::default(),
             config,
         })
     }
@@ -452,6 +455,11 @@ impl Eskf {
         self.state = next;
         self.dynamics = Some(dynamics);
         self.angular_rate = corrected.dtheta / corrected.dt;
+        self.recent_force.add(
+            &(self.state.q * corrected.dv / corrected.dt),
+            corrected.dt,
+            self.config.coarse_alignment_s,
+        );
         self.record_pose(increment.t);
         let divergence = self.guard.check_speed(self.state.v.norm())?;
         let reason = ResetReason::Diverged(divergence);
@@ -681,10 +689,17 @@ impl Eskf {
     /// Restarts the navigation state where it stands: position and heading stay, so that the
     /// autopilot's frame does not move; the velocity restarts at zero, the biases at their
     /// priors and the covariance from the start-in-motion sigmas, so that the odometry
-    /// measures them again. Until the estimate converges again it is not to be trusted.
+    /// measures them again. The tilt is levelled on the last second's specific force, as a
+    /// start in motion levels it: a divergence often is a wrong tilt, which gravity turned into
+    /// the runaway velocity (100 mrad in `open-room` started in motion, twice the start's
+    /// sigma). Until the estimate converges again it is not to be trusted.
     fn reinitialise(&mut self, reason: ResetReason) {
         let resume = Resume::of(&self.state, &self.covariance);
-        self.state = NominalState::at_rest(self.state.q, Vector3::zeros());
+        let attitude = self
+            .recent_force
+            .levelled(&self.state.q, self.config.coarse_alignment_s)
+            .unwrap_or(self.state.q);
+        self.state = NominalState::at_rest(attitude, Vector3::zeros());
         self.covariance = initial_covariance(
             &self.config,
             &self.state.q,
@@ -708,6 +723,7 @@ impl Eskf {
     /// Drops what ties the filter to earlier epochs: the clone, the carried noise, the
     /// zero-motion window, the divergence guard's history and the convergence.
     pub(super) fn forget_epochs(&mut self) {
+        self.recent_force.clear();
         self.clone = None;
         self.carried = None;
         self.zero_motion = None;

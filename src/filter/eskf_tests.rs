@@ -881,6 +881,34 @@ fn an_impossible_speed_restarts_the_navigation_state_where_it_stands() {
     assert!(sigmas[state::VEL] >= FilterConfig::default().moving_start_sigma_velocity_mps);
 }
 
+/// A tilt the filter got wrong turns gravity into an acceleration nothing stops; the restart
+/// that the speed then forces must not keep that tilt, or it diverges again at once.
+#[test]
+fn a_restart_after_a_divergence_levels_its_tilt_from_the_recent_specific_force() {
+    let truth = Stationary {
+        q: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7),
+    };
+    let tilted = Stationary {
+        q: UnitQuaternion::from_euler_angles(0.04, -0.12, 0.7),
+    };
+    let mut filter = start_at_truth(FilterConfig::default(), &tilted, 0.0);
+    let outcomes: Vec<_> = truth
+        .imu_samples(0.01, 12.0, 100.0, false)
+        .iter()
+        .map(|s| filter.push_imu(s))
+        .collect();
+    let restarted = outcomes
+        .iter()
+        .position(|o| matches!(o, ImuOutcome::Reset(ResetReason::Diverged(_))));
+    assert!(restarted.is_some(), "no restart");
+    let error = (filter.estimate().attitude * truth.q.inverse()).scaled_axis();
+    assert!(
+        error.xy().norm() < 0.005,
+        "tilt error after the restart {error:?}"
+    );
+    assert!(error.z.abs() < 0.01, "the heading stays: {error:?}");
+}
+
 #[test]
 fn a_long_imu_gap_realigns_keeping_position_and_heading() {
     let q = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7);
