@@ -452,14 +452,14 @@ impl Eskf {
             self.reset(ResetReason::NonFinitePropagation);
             return Some(ResetReason::NonFinitePropagation);
         }
+        // The specific force the step applied in navigation axes, read back from its velocity
+        // change rather than rotated again.
+        let force = (next.v - self.state.v) / corrected.dt - self.gravity;
+        self.recent_force
+            .add(&force, corrected.dt, self.config.coarse_alignment_s);
         self.state = next;
         self.dynamics = Some(dynamics);
         self.angular_rate = corrected.dtheta / corrected.dt;
-        self.recent_force.add(
-            &(self.state.q * corrected.dv / corrected.dt),
-            corrected.dt,
-            self.config.coarse_alignment_s,
-        );
         self.record_pose(increment.t);
         let divergence = self.guard.check_speed(self.state.v.norm())?;
         let reason = ResetReason::Diverged(divergence);
@@ -721,7 +721,8 @@ impl Eskf {
     }
 
     /// Drops what ties the filter to earlier epochs: the clone, the carried noise, the
-    /// zero-motion window, the divergence guard's history and the convergence.
+    /// zero-motion window, the divergence guard's history, the convergence, and the recent
+    /// specific force, which the attitude before a restart put into navigation axes.
     pub(super) fn forget_epochs(&mut self) {
         self.recent_force.clear();
         self.clone = None;
