@@ -225,6 +225,9 @@ pub struct Eskf {
     last_speed_prior: Option<f64>,
     /// What a restart levels its tilt by.
     recent_force: RecentForce,
+    /// Every change of the velocity that was not the IMU's, summed (navigation axes, m/s):
+    /// updates and restarts. Scans deskewed before and after such a change disagree by it.
+    velocity_corrections: Vector3<f64>,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -308,6 +311,7 @@ impl Eskf {
             resume: None,
             last_speed_prior: None,
             recent_force: RecentForce::default(),
+            velocity_corrections: Vector3::zeros(),
             config,
         })
     }
@@ -629,6 +633,7 @@ impl Eskf {
                 ..report
             });
         }
+        self.velocity_corrections += next.v - self.state.v;
         let step = (next.p - self.state.p).norm();
         if step > self.config.max_position_step_m {
             self.count_reset(ResetReason::PositionStep { metres: step });
@@ -699,6 +704,7 @@ impl Eskf {
             .recent_force
             .levelled(&self.state.q, self.config.coarse_alignment_s)
             .unwrap_or(self.state.q);
+        self.velocity_corrections -= self.state.v;
         self.state = NominalState::at_rest(attitude, Vector3::zeros());
         self.covariance = initial_covariance(
             &self.config,
@@ -869,6 +875,11 @@ impl Eskf {
     pub(crate) fn sigmas(&self) -> [f64; ERROR_STATES] {
         std::array::from_fn(|i| self.covariance[(i, i)].sqrt())
     }
+    /// The sum of the velocity's changes that were not the IMU's (`velocity_corrections`).
+    pub(crate) fn velocity_corrections(&self) -> Vector3<f64> {
+        self.velocity_corrections
+    }
+
     /// The larger of the roll and pitch sigmas (global attitude error), rad.
     pub(crate) fn tilt_sigma(&self) -> f64 {
         let c = &self.covariance;

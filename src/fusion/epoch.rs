@@ -5,6 +5,7 @@
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 use super::anchor::Anchored;
+use super::deskew_basis::DeskewBasis;
 use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, WithCovariance};
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
 use super::witnesses::{CheckedLone, LoneWitnesses};
@@ -53,10 +54,22 @@ struct Cleared {
 impl Fusion {
     pub(super) fn run_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
         self.forget_provisional_after_restart();
+        let deskew = DeskewBasis::of(
+            scans,
+            scans
+                .each_ref()
+                .map(|scan| &self.scanners[scan.sensor].geometry),
+            t_ref,
+            self.filter.velocity_corrections(),
+        );
         let mut current = std::mem::take(&mut self.current);
         let confirmed = self.extract(scans, t_ref, &mut current);
         let mut record = planes_record(&current);
-        let reference = self.reference.take();
+        let mut reference = self.reference.take();
+        if let Some(r) = &mut reference {
+            r.deskew
+                .widen(&deskew, &self.filter.state().q, &mut r.planes.planes);
+        }
         let solvable = reference.as_ref().filter(|r| r.cloned);
         record.unconfirmed_planes = match (confirmed, solvable) {
             (true, _) => current.refused,
@@ -80,6 +93,7 @@ impl Fusion {
         self.reference = Some(Reference {
             planes: current,
             cloned,
+            deskew,
             noise_maps,
         });
         self.current = reference.map(|r| r.planes).unwrap_or_default();

@@ -12,6 +12,7 @@ mod building_vertical;
 pub(crate) mod clock;
 pub(crate) mod config;
 mod confirmation;
+mod deskew_basis;
 mod epoch;
 mod level_drift;
 pub mod record;
@@ -52,6 +53,8 @@ pub(crate) struct FusionCounters {
 struct Reference {
     planes: EpochPlanes,
     cloned: bool,
+    /// The velocity its scans were deskewed with.
+    deskew: deskew_basis::DeskewBasis,
     /// How the planes entered the relative pose that ended at this epoch, if one was solved.
     noise_maps: Vec<shared_noise::PlaneNoiseMap>,
 }

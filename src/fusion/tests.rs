@@ -487,15 +487,16 @@ fn assert_velocity_honest(scenario: &Scenario, fusion: &Fusion, max_error_mps: f
     );
 }
 
-/// Started 32.6 s into random room 35 (the rolled rig, walking along the room): the far wall
+/// Started 32.4 s into random room 35 (the rolled rig, walking along the room): the far wall
 /// was the only plane along the room, and once the velocity had drifted (the floor unseen, the
 /// tilt a little off) the filter's prediction contradicted it, so it was left out, and the
 /// estimate stayed converged while its velocity along the room ran to 3.6 m/s off with a sigma
-/// of 0.37 m/s. A surface that contradicts the filter leaves that direction in doubt: the
-/// estimate is not to be used until a later epoch agrees.
+/// of 0.3 m/s. A surface that contradicts the filter leaves that direction in doubt: the
+/// estimate is not to be used until a later epoch agrees. (Started 32.6 s in, as this test was
+/// until the deskew's disagreement widened the planes, the wall is no longer contradicted.)
 #[test]
 fn a_wall_that_contradicts_the_filter_leaves_the_estimate_unusable() {
-    let (scenario, fusion, records) = run_from("random-room-35", 35, 32.6, 15.0);
+    let (scenario, fusion, records) = run_from("random-room-35", 35, 32.4, 15.0);
     let contradicted = records
         .iter()
         .flat_map(|r| &r.lone_directions)
