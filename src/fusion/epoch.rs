@@ -367,6 +367,7 @@ impl Fusion {
             excluded,
             limits.lone_plane_min_extent_m,
             self.odometer.config().building(previous.down),
+            &epoch.prior,
         )
         .checked(
             rotation,
