@@ -15,12 +15,16 @@ use crate::filter::{
     Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
     RelativeTranslation,
 };
-use crate::integrity::EpochReport;
+use crate::integrity::{chi_square_upper_quantile, EpochReport};
 use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose, Vertical};
 use crate::sensors::Scan;
+
+/// The chance of an update's NIS beyond which the update is a surprise: it then releases no
+/// direction held provisional (`witnesses::Provisional`).
+const SURPRISE_ALPHA: f64 = 0.05;
 
 /// How an epoch's planes are confirmed (`confirmation`).
 // It lives on the stack for one call; boxing the prior would allocate every epoch.
@@ -241,7 +245,10 @@ impl Fusion {
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
         if record.outcome == EpochOutcome::Fused {
-            self.settle_provisional(&cleared, previous.t_ref);
+            let surprised = record
+                .update
+                .is_some_and(|u| u.nis > chi_square_upper_quantile(u.dof, SURPRISE_ALPHA));
+            self.settle_provisional(&cleared, previous.t_ref, surprised);
         }
         record.provisional_directions = self.provisional.len();
         noise_maps
@@ -381,7 +388,7 @@ impl Fusion {
 
     /// Holds the lone directions the filter just fused unchecked, and lets go of those it
     /// fused checked (`witnesses::Provisional`). A restart forgets them with the state.
-    fn settle_provisional(&mut self, cleared: &Cleared, t_previous: f64) {
+    fn settle_provisional(&mut self, cleared: &Cleared, t_previous: f64, surprised: bool) {
         let to_navigation = self
             .filter
             .pose_at_or_after(t_previous)
@@ -394,8 +401,12 @@ impl Fusion {
             .displacement
             .as_ref()
             .map(|_| cleared.displacement_observability);
-        self.provisional
-            .after_fusion(&cleared.lone, [rotation, displacement], &to_navigation);
+        self.provisional.after_fusion(
+            &cleared.lone,
+            [rotation, displacement],
+            &to_navigation,
+            surprised,
+        );
     }
 
     /// A filter that lost its convergence restarted: what it held provisional went with the
