@@ -145,7 +145,7 @@ impl Building {
         normal.dot(&self.down).abs() >= self.max_tilt_rad.cos()
     }
 
-    fn is_plumb(&self, normal: &Vector3<f64>) -> bool {
+    pub(crate) fn is_plumb(&self, normal: &Vector3<f64>) -> bool {
         normal.dot(&self.down).abs() <= self.max_tilt_rad.sin()
     }
 }
