@@ -56,6 +56,17 @@ pub fn mean_nees_interval(dof: usize, count: usize) -> [f64; 2] {
     [0.025, 0.975].map(|p| chi_square_quantile(p, dof * count) / count as f64)
 }
 
+/// The chance of a NIS beyond which an update surprises the filter.
+const SURPRISE_PROBABILITY: f64 = 0.95;
+
+/// Whether an update's NIS lies past the 95 % point its degrees of freedom make likely: the
+/// filter's prediction disagreed with the measurement, so neither its convergence
+/// (`eskf/relative_pose_update.rs`) nor a direction it held in doubt (`fusion::witnesses`)
+/// is to be settled on it.
+pub(crate) fn surprises(nis: f64, dof: usize) -> bool {
+    dof > 0 && nis > chi_square_quantile(SURPRISE_PROBABILITY, dof)
+}
+
 /// `x` such that a chi-square variable with `dof` degrees of freedom is below `x` with
 /// `probability`. Infinite for probability 1 (a disabled gate).
 pub(crate) fn chi_square_quantile(probability: f64, dof: usize) -> f64 {

@@ -28,8 +28,8 @@ pub(crate) mod testkit;
 pub(crate) mod update;
 
 pub use config::{FilterConfig, RelativePoseUpdate};
-pub(crate) use consistency::chi_square_quantile;
 pub use consistency::mean_nees_interval;
+pub(crate) use consistency::{chi_square_quantile, surprises};
 pub use eskf::{Eskf, LevelDirection};
 pub(crate) use eskf::{FilterPhase, ImuOutcome, ResetReason, UpdateReport};
 pub(crate) use history::Pose;

@@ -12,19 +12,15 @@ use super::witnesses::{CheckedLone, LoneWitnesses};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
 use crate::filter::{
-    Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
+    surprises, Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
     RelativeTranslation,
 };
-use crate::integrity::{chi_square_upper_quantile, EpochReport};
+use crate::integrity::EpochReport;
 use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose, Vertical};
 use crate::sensors::Scan;
-
-/// The chance of an update's NIS beyond which the update is a surprise: it then releases no
-/// direction held provisional (`witnesses::Provisional`).
-const SURPRISE_ALPHA: f64 = 0.05;
 
 /// How an epoch's planes are confirmed (`confirmation`).
 // It lives on the stack for one call; boxing the prior would allocate every epoch.
@@ -245,9 +241,7 @@ impl Fusion {
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
         if record.outcome == EpochOutcome::Fused {
-            let surprised = record
-                .update
-                .is_some_and(|u| u.nis > chi_square_upper_quantile(u.dof, SURPRISE_ALPHA));
+            let surprised = record.update.is_some_and(|u| surprises(u.nis, u.dof));
             self.settle_provisional(&cleared, previous.t_ref, surprised);
         }
         record.provisional_directions = self.provisional.len();

@@ -527,6 +527,34 @@ fn assert_honest_or_unusable(scenario: &Scenario, fusion: &Fusion) {
     );
 }
 
+/// The epochs (time, largest error) of a run as `run_at_rate` where the estimate was usable
+/// (converged, every velocity sigma within the autopilot profile's 0.5 m/s) and its velocity
+/// more than three sigmas off on some axis.
+fn usable_and_wrong(
+    name: &str,
+    seed: u64,
+    start_s: f64,
+    seconds: f64,
+    epoch_rate_hz: f64,
+) -> Vec<(f64, f64)> {
+    let mut wrong = Vec::new();
+    run_judging(
+        name,
+        seed,
+        start_s,
+        seconds,
+        epoch_rate_hz,
+        |scenario, fusion, record| {
+            let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
+            let usable = fusion.estimate().converged && sigma.max() <= 0.5;
+            if usable && (0..3).any(|k| error[k].abs() > 3.0 * sigma[k]) {
+                wrong.push((record.t, error.amax()));
+            }
+        },
+    );
+    wrong
+}
+
 /// The body-frame error of the fusion's last velocity against the truth, and its sigmas.
 fn velocity_error_and_sigma(scenario: &Scenario, fusion: &Fusion) -> (Vector3<f64>, Vector3<f64>) {
     let estimate = fusion.estimate();
@@ -627,22 +655,8 @@ fn a_low_face_whose_level_line_climbs_against_the_floor_is_left_out() {
 /// to 2.9 m/s off. Until the estimate converges, a surprise starts the count again.
 #[test]
 fn a_start_that_keeps_surprising_the_filter_does_not_converge() {
-    let mut usable_and_wrong = Vec::new();
-    run_judging(
-        "random-room-103",
-        103,
-        33.2,
-        40.0,
-        1.0,
-        |scenario, fusion, record| {
-            let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
-            let usable = fusion.estimate().converged && sigma.max() <= 0.5;
-            if usable && (0..3).any(|k| error[k].abs() > 3.0 * sigma[k]) {
-                usable_and_wrong.push((record.t, error.amax()));
-            }
-        },
-    );
-    assert!(usable_and_wrong.is_empty(), "{usable_and_wrong:?}");
+    let wrong = usable_and_wrong("random-room-103", 103, 33.2, 40.0, 1.0);
+    assert!(wrong.is_empty(), "{wrong:?}");
 }
 
 /// Started 23.7 s into random room 99 (the rolled rig, in motion), an epoch for every scan
@@ -653,22 +667,8 @@ fn a_start_that_keeps_surprising_the_filter_does_not_converge() {
 /// beside another that agrees, square to the walls, or confirmed by a third line.
 #[test]
 fn a_start_in_motion_takes_no_vertical_from_a_plane_the_walls_disown() {
-    let mut usable_and_wrong = Vec::new();
-    run_judging(
-        "random-room-99",
-        99,
-        23.7,
-        10.0,
-        4.0,
-        |scenario, fusion, record| {
-            let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
-            let usable = fusion.estimate().converged && sigma.max() <= 0.5;
-            if usable && (0..3).any(|k| error[k].abs() > 3.0 * sigma[k]) {
-                usable_and_wrong.push((record.t, error.amax()));
-            }
-        },
-    );
-    assert!(usable_and_wrong.is_empty(), "{usable_and_wrong:?}");
+    let wrong = usable_and_wrong("random-room-99", 99, 23.7, 10.0, 4.0);
+    assert!(wrong.is_empty(), "{wrong:?}");
 }
 
 /// Started 33.15 s into random room 103 (the rolled rig, in motion), an epoch for every scan
@@ -680,22 +680,8 @@ fn a_start_in_motion_takes_no_vertical_from_a_plane_the_walls_disown() {
 /// Within two sigmas of square, the walls disown it.
 #[test]
 fn a_start_in_motion_takes_no_vertical_from_a_floor_leaning_off_its_walls() {
-    let mut usable_and_wrong = Vec::new();
-    run_judging(
-        "random-room-103",
-        103,
-        33.15,
-        20.0,
-        4.0,
-        |scenario, fusion, record| {
-            let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
-            let usable = fusion.estimate().converged && sigma.max() <= 0.5;
-            if usable && (0..3).any(|k| error[k].abs() > 3.0 * sigma[k]) {
-                usable_and_wrong.push((record.t, error.amax()));
-            }
-        },
-    );
-    assert!(usable_and_wrong.is_empty(), "{usable_and_wrong:?}");
+    let wrong = usable_and_wrong("random-room-103", 103, 33.15, 20.0, 4.0);
+    assert!(wrong.is_empty(), "{wrong:?}");
 }
 
 /// Random room 54 (the paper's rig, still start) at 10 Hz: when the platform moved off, a

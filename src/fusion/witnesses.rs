@@ -276,8 +276,15 @@ impl Provisional {
     /// After an epoch whose relative pose the filter fused: `checked` its lone directions,
     /// `fused` the body-i directions of each of `[rotation, displacement]` that went in (`None`
     /// for a solve that did not), `to_navigation` turns body-i axes into navigation axes.
-    /// `surprised`: the update's NIS was beyond what its degrees of freedom make likely, so
-    /// what it fused does not vouch for what was held (`Release`).
+    /// `surprised`: the update's NIS was beyond what its degrees of freedom make likely
+    /// (`filter::surprises`), so what it fused does not vouch for what was held. A held
+    /// direction was fused unchecked, so if it was wrong the filter has learnt from it: in
+    /// `random-room-35` started 30.8 s in, a table top matched to the floor put 0.7 m/s into
+    /// the vertical velocity, and when the floor and the ceiling measured the vertical rightly
+    /// four epochs later, the update (NIS 11.8 on 3 degrees of freedom) split the surprise
+    /// between the velocity and the accelerometer's bias and scale, which then ran the vertical
+    /// velocity off at 0.18 m/s^2 with a sigma of 1 cm/s. A surprised update releases nothing;
+    /// a later one that agrees does.
     pub(super) fn after_fusion(
         &mut self,
         checked: &CheckedLone,
@@ -285,49 +292,32 @@ impl Provisional {
         to_navigation: &UnitQuaternion<f64>,
         surprised: bool,
     ) {
-        let release = if surprised {
-            Release::Nothing
-        } else {
-            Release::WhatWentInChecked
-        };
         settle(
             &mut self.rotation,
             &checked.rotation,
             rotation,
             to_navigation,
-            release,
+            !surprised,
         );
         settle(
             &mut self.displacement,
             &checked.displacement,
             displacement,
             to_navigation,
-            release,
+            !surprised,
         );
     }
 }
 
-/// Whether an epoch's fusion lets go of the held directions it fused checked. A held direction
-/// was fused unchecked, so if it was wrong the filter has learnt from it: in `random-room-35`
-/// started 30.8 s in, a table top matched to the floor put 0.7 m/s into the vertical velocity,
-/// and when the floor and the ceiling measured the vertical rightly four epochs later, the
-/// update (NIS 11.8 on 3 degrees of freedom) split the surprise between the velocity and the
-/// accelerometer's bias and scale, which then ran the vertical velocity off at 0.18 m/s^2 with
-/// a sigma of 1 cm/s. A surprised update releases nothing; a later one that agrees does.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Release {
-    Nothing,
-    WhatWentInChecked,
-}
-
-/// Adds the unchecked lone directions that went in and the contradicted ones, and drops the
-/// held directions that went in checked: by the prediction, or by two planes.
+/// Adds the unchecked lone directions that went in and the contradicted ones, and, if
+/// `releases`, drops the held directions that went in checked: by the prediction, or by two
+/// planes.
 fn settle(
     held: &mut Vec<Vector3<f64>>,
     checked: &[(Vector3<f64>, Check)],
     fused: Option<Observability>,
     to_navigation: &UnitQuaternion<f64>,
-    release: Release,
+    releases: bool,
 ) {
     let went_in = |u: &Vector3<f64>| fused.is_some_and(|o| o.contains(u, SAME_DIRECTION));
     let unchecked: Vec<Vector3<f64>> = checked
@@ -340,7 +330,7 @@ fn settle(
         let still_unchecked = unchecked
             .iter()
             .any(|u| u.dot(&body).abs() > SAME_DIRECTION);
-        still_unchecked || !went_in(&body) || release == Release::Nothing
+        still_unchecked || !went_in(&body) || !releases
     });
     for (u, check) in checked {
         let navigation = to_navigation * u;

@@ -3,7 +3,7 @@
 
 use super::{Eskf, FilterPhase, ResetReason, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::config::RelativePoseUpdate;
-use crate::filter::consistency::chi_square_quantile;
+use crate::filter::consistency::surprises;
 use crate::filter::history::Pose;
 use crate::filter::relative_pose::RelativePoseMeasurement;
 
@@ -107,16 +107,12 @@ impl Eskf {
     }
 }
 
-/// The chance of a NIS beyond which an update surprises a filter that has not converged yet.
-const SURPRISE_PROBABILITY: f64 = 0.95;
-
-/// Whether the update's NIS lies beyond what its degrees of freedom make likely, or the gate
-/// refused it. Until the estimate has converged such an update starts the count again: the
-/// filter's prediction disagreed with the odometry, so its covariance is not yet to be
-/// believed. In `random-room-99` at 10 Hz a start in motion counted as converged on three
-/// epochs after two refusals and NIS of 7.5 and 6.7 on 2 degrees of freedom, its tilt
-/// off and its velocity 0.7 m/s off at a sigma of 0.09 m/s, and growing.
+/// Whether the update surprised the filter (`consistency::surprises`) or the gate refused it.
+/// Until the estimate has converged such an update starts the count again: the filter's
+/// prediction disagreed with the odometry, so its covariance is not yet to be believed. In
+/// `random-room-99` at 10 Hz a start in motion counted as converged on three epochs after two
+/// refusals and NIS of 7.5 and 6.7 on 2 degrees of freedom, its tilt off and its velocity
+/// 0.7 m/s off at a sigma of 0.09 m/s, and growing.
 fn surprised(report: &UpdateReport) -> bool {
-    report.dof > 0
-        && (!report.accepted || report.nis > chi_square_quantile(SURPRISE_PROBABILITY, report.dof))
+    report.dof > 0 && (!report.accepted || surprises(report.nis, report.dof))
 }
