@@ -129,10 +129,10 @@ impl Overshoot {
             return false;
         }
         let mut seen = false;
-        for (distance, _) in
+        for (level, _) in
             scan.beams_in_bearing(*down, horizontal / reach, self.bearing_half_width_rad)
         {
-            if distance < reach + self.margin_m {
+            if level.norm() < reach + self.margin_m {
                 return false;
             }
             seen = true;

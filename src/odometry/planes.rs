@@ -217,21 +217,21 @@ pub(crate) struct ScanLines<'a> {
 
 impl<'a> ScanLines<'a> {
     /// The beams within `half_width_rad` of the level unit `bearing` from the body origin, as
-    /// (level distance, depth along `down`): what the scan meets in that bearing, which tells
-    /// a single line's surface (`level_lines`, `wall_lines`).
+    /// (level part of the end point, depth along `down`): what the scan meets in that bearing,
+    /// which tells a single line's surface (`level_lines`, `wall_lines`).
     pub(crate) fn beams_in_bearing(
         &self,
         down: Vector3<f64>,
         bearing: Vector3<f64>,
         half_width_rad: f64,
-    ) -> impl Iterator<Item = (f64, f64)> + 'a {
+    ) -> impl Iterator<Item = (Vector3<f64>, f64)> + 'a {
         let within = half_width_rad.cos();
         self.beams.iter().filter_map(move |beam| {
             let depth = beam.body.dot(&down);
             let level = beam.body - down * depth;
             let distance = level.norm();
             (distance > f64::EPSILON && level.dot(&bearing) >= within * distance)
-                .then_some((distance, depth))
+                .then_some((level, depth))
         })
     }
 

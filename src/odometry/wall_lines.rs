@@ -145,8 +145,11 @@ fn wall_plane(
 
 /// Whether a level line is long enough for a wall and every beam of the other scanner in its
 /// bearing (there must be one) ends beyond it vertically, away from the body's level, by
-/// `margin_m`, and not beyond it horizontally by more: below a line under the body, nothing but
-/// the floor's own line can end at its depth; above one over the body, the ceiling's.
+/// `margin_m`, and no further out than the wall it would lie on: below a line under the body,
+/// nothing but the floor's own line can end at its depth; above one over the body, the
+/// ceiling's. How far out a beam ends is measured along that wall's normal, not as its level
+/// range: a beam ten degrees off the bearing meets the same wall 1.5 % further away, 7 cm at
+/// 4.4 m, and a back wall seen again higher up would have counted as passing behind the line.
 fn stands_clear_of_the_other_scan(
     scans: &[ScanLines; 2],
     scanner: usize,
@@ -161,21 +164,29 @@ fn stands_clear_of_the_other_scan(
     let depth = line.centroid.dot(&down);
     let horizontal = line.centroid - down * depth;
     let reach = horizontal.norm();
-    if reach <= f64::EPSILON {
+    let across = line.direction.cross(&down);
+    if reach <= f64::EPSILON || across.norm() <= f64::EPSILON {
         return false;
     }
+    let outward = across.normalize() * across.dot(&line.centroid).signum();
+    let wall_offset = outward.dot(&line.centroid);
     let clearance = 3.0
         * parameters
             .margin_m
             .hypot(reach * parameters.vertical_sigma_rad);
     let mut seen = false;
-    for (distance, beam_depth) in scans[1 - scanner].beams_in_bearing(
+    for (level, beam_depth) in scans[1 - scanner].beams_in_bearing(
         down,
         horizontal / reach,
         parameters.bearing_half_width_rad,
     ) {
         let beyond = (beam_depth - depth) * depth.signum();
-        if distance > reach + parameters.margin_m || beyond < clearance {
+        // A plumb wall's offset is the same at every height, up to its tilt over the rise.
+        let out_tolerance = 3.0
+            * parameters
+                .margin_m
+                .hypot((beam_depth - depth) * parameters.tilt_sigma_rad);
+        if outward.dot(&level) > wall_offset + out_tolerance || beyond < clearance {
             return false;
         }
         seen = true;
@@ -295,6 +306,17 @@ mod tests {
         assert_eq!(found.len(), 1);
         assert!((found[0].normal - Vector3::x()).norm() < 1e-12);
         assert!((found[0].rho - 5.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_wall_the_other_scanner_meets_higher_up_off_the_bearing_is_a_wall() {
+        // A back wall 8 m away, its line 0.5 m over the body; the other scanner meets it 1.1 m
+        // higher, seven to ten degrees off the line's bearing, so its beams end up to 12 cm
+        // further away on the level (more than the fixture's 0.1 m margin) on the same wall.
+        let back_wall = line(Vector3::new(8.0, 0.0, -0.5), Vector3::y(), 3.0);
+        let found = planes(back_wall, Some(Vector3::new(8.0, 1.2, -1.6)));
+        assert_eq!(found.len(), 1);
+        assert!((found[0].normal - Vector3::x()).norm() < 1e-12);
     }
 
     #[test]
