@@ -16,6 +16,8 @@
 //! it tells the displacement along the normal and nothing about the rotation
 //! (`Plane::normal_assumed`).
 
+use nalgebra::Vector3;
+
 use super::lines::Segment;
 use super::planes::{Building, LineRef, Plane, ScanLines};
 use super::uncertainty::PlaneUncertainty;
@@ -102,16 +104,16 @@ fn wall_plane(
     if slope > parameters.max_slope_rad.sin() {
         return None;
     }
-    let level = slope <= parameters.building.max_tilt_rad.sin();
-    if level && !stands_clear_of_the_other_scan(scans, scanner, segment, parameters) {
-        return None;
-    }
     let square = line.direction.cross(&down);
     let mut normal = square.normalize();
     let mut rho = normal.dot(&line.centroid);
     if rho < 0.0 {
         normal = -normal;
         rho = -rho;
+    }
+    let level = slope <= parameters.building.max_tilt_rad.sin();
+    if level && !stands_clear_of_the_other_scan(scans, scanner, segment, &normal, rho, parameters) {
+        return None;
     }
     // Two errors turn the plane about its centroid, each moving its distance by the turn times
     // the centroid's offset across the turn: the wall off plumb (or the filter's vertical off)
@@ -145,7 +147,8 @@ fn wall_plane(
 
 /// Whether a level line is long enough for a wall and every beam of the other scanner in its
 /// bearing (there must be one) ends beyond it vertically, away from the body's level, by
-/// `margin_m`, and no further out than the wall it would lie on: below a line under the body,
+/// `margin_m`, and no further out than the wall it would lie on (`normal . p = rho`, as
+/// `wall_plane` places it): below a line under the body,
 /// nothing but the floor's own line can end at its depth; above one over the body, the
 /// ceiling's. How far out a beam ends is measured along that wall's normal, not as its level
 /// range: a beam ten degrees off the bearing meets the same wall 1.5 % further away, 7 cm at
@@ -154,6 +157,8 @@ fn stands_clear_of_the_other_scan(
     scans: &[ScanLines; 2],
     scanner: usize,
     segment: usize,
+    normal: &Vector3<f64>,
+    rho: f64,
     parameters: &WallLineParameters,
 ) -> bool {
     let down = parameters.building.down;
@@ -164,12 +169,9 @@ fn stands_clear_of_the_other_scan(
     let depth = line.centroid.dot(&down);
     let horizontal = line.centroid - down * depth;
     let reach = horizontal.norm();
-    let across = line.direction.cross(&down);
-    if reach <= f64::EPSILON || across.norm() <= f64::EPSILON {
+    if reach <= f64::EPSILON {
         return false;
     }
-    let outward = across.normalize() * across.dot(&line.centroid).signum();
-    let wall_offset = outward.dot(&line.centroid);
     let clearance = 3.0
         * parameters
             .margin_m
@@ -186,7 +188,7 @@ fn stands_clear_of_the_other_scan(
             * parameters
                 .margin_m
                 .hypot((beam_depth - depth) * parameters.tilt_sigma_rad);
-        if outward.dot(&level) > wall_offset + out_tolerance || beyond < clearance {
+        if normal.dot(&level) > rho + out_tolerance || beyond < clearance {
             return false;
         }
         seen = true;
