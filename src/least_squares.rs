@@ -2,7 +2,7 @@
 //! problem `y = H x + e`, `e ~ N(0, R)`, in three unknowns, with each row tagged by the plane it
 //! came from. Displacement (eq 2) and rotation (eqs 6-7) both produce one of these.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn, Matrix3, SymmetricEigen, Vector3};
 use std::fmt;
 
 /// Relative eigenvalue of the information matrix below which a direction counts as unobserved.
@@ -89,11 +89,8 @@ impl LinearSystem {
     /// strongest direction's.
     pub(crate) fn solve_within(self, tolerance: f64) -> Result<Solution, SolveError> {
         let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
-        let r_inv_h = r_chol.solve(&self.h);
         let r_inv_y = r_chol.solve(&self.y);
-        let information: Matrix3<f64> = (self.h.transpose() * &r_inv_h)
-            .fixed_view::<3, 3>(0, 0)
-            .into();
+        let information = self.information(&r_chol);
         let unobservable = directions_below(&information, tolerance);
         if !unobservable.is_empty() {
             return Err(SolveError::UnderDetermined { unobservable });
@@ -114,6 +111,32 @@ impl LinearSystem {
             system: self,
             dilution,
         })
+    }
+
+    /// As `solve`, when `free` directions are already known to be unobserved (judged on the
+    /// geometry alone): then refuses, naming the `free` directions the weighted information
+    /// holds least of. Those are what the observed directions must be square to; any other
+    /// choice would hand the observed ones a share of whatever is assumed along the free ones.
+    pub(crate) fn solve_leaving_free(self, free: usize) -> Result<Solution, SolveError> {
+        if free == 0 {
+            return self.solve();
+        }
+        let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
+        let eigen = SymmetricEigen::new(self.information(&r_chol));
+        let mut order: Vec<usize> = (0..3).collect();
+        order.sort_by(|&a, &b| eigen.eigenvalues[a].total_cmp(&eigen.eigenvalues[b]));
+        let unobservable = order[..free.min(3)]
+            .iter()
+            .map(|&i| eigen.eigenvectors.column(i).into_owned())
+            .collect();
+        Err(SolveError::UnderDetermined { unobservable })
+    }
+
+    /// `H^T R^-1 H`, given the Cholesky factor of `R`.
+    fn information(&self, r_chol: &Cholesky<f64, Dyn>) -> Matrix3<f64> {
+        (self.h.transpose() * r_chol.solve(&self.h))
+            .fixed_view::<3, 3>(0, 0)
+            .into()
     }
 }
 

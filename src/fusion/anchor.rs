@@ -22,7 +22,7 @@
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::least_squares::{Solution, SolveError};
+use crate::least_squares::{directions_below, Solution, SolveError, PARALLEL_TOLERANCE};
 use crate::odometry::displacement::solve_displacement;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::{LineRef, Plane};
@@ -146,7 +146,7 @@ impl Anchored {
     pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
         let mut excluded = excluded.to_vec();
         excluded.extend(&self.epoch_excluded);
-        solve_displacement(
+        let solution = solve_displacement(
             &self.previous,
             &self.current,
             &self.matches,
@@ -154,7 +154,25 @@ impl Anchored {
             &self.prior,
             &self.prior_covariance,
             &excluded,
-        )
+        )?;
+        refuse_loose_anchors(solution)
+    }
+}
+
+/// Refuses an anchored displacement whose weakest direction carries at most
+/// `PARALLEL_TOLERANCE` of the strongest's information: an anchor held loosely beside planes of
+/// a millimetre (two free directions under a vague prior) would otherwise be fused as if the
+/// planes had pinned what it holds.
+fn refuse_loose_anchors(solution: Solution) -> Result<Solution, SolveError> {
+    let information = solution
+        .covariance
+        .try_inverse()
+        .ok_or(SolveError::BadCovariance)?;
+    let unobservable = directions_below(&information, PARALLEL_TOLERANCE);
+    if unobservable.is_empty() {
+        Ok(solution)
+    } else {
+        Err(SolveError::UnderDetermined { unobservable })
     }
 }
 

@@ -13,8 +13,9 @@
 
 use super::matching::PlaneMatch;
 use super::planes::Plane;
-use crate::least_squares::PARALLEL_TOLERANCE;
-use crate::least_squares::{LinearSystem, Solution, SolveError};
+use crate::least_squares::{
+    directions_below, LinearSystem, Solution, SolveError, PARALLEL_TOLERANCE,
+};
 use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
 
 struct PlaneRow {
@@ -82,6 +83,12 @@ pub(crate) fn solve_displacement(
                 )
             })
     };
+    // Judged on the normals alone, as the rotation is: a far wall measured to centimetres
+    // beside a floor measured to a fraction of a millimetre still observes the motion it faces.
+    let geometry: Matrix3<f64> = active()
+        .map(|(_, row)| row.normal * row.normal.transpose())
+        .sum();
+    let free = directions_below(&geometry, PARALLEL_TOLERANCE).len();
     let planes = active().count();
     let mut system = LinearSystem {
         h: DMatrix::zeros(planes, 3),
@@ -99,5 +106,5 @@ pub(crate) fn solve_displacement(
         system.r[(row, row)] = variance;
         system.plane_of_row.push(k);
     }
-    system.solve_within(PARALLEL_TOLERANCE)
+    system.solve_leaving_free(free)
 }

@@ -606,6 +606,79 @@ proptest! {
     }
 }
 
+/// A hallway's walls and floor measured to a fraction of a millimetre, and one more surface
+/// facing along it (normal `far_normal`, not necessarily unit) measured to `sigma_far` m.
+fn hallway_with_a_coarse_surface_ahead(
+    far_normal: Vector3<f64>,
+    sigma_far: f64,
+    dr: &Vector3<f64>,
+) -> (Vec<Plane>, Vec<Plane>, Vec<PlaneMatch>) {
+    let world = [
+        (Vector3::y(), 1.5),
+        (-Vector3::y(), 1.5),
+        (Vector3::z(), 1.2),
+        (far_normal.normalize(), 6.0),
+    ];
+    let (mut previous, mut current, matches) = epoch_pair(&world, &UnitQuaternion::identity(), dr);
+    for planes in [&mut previous, &mut current] {
+        for (k, plane) in planes.iter_mut().enumerate() {
+            plane.uncertainty.sigma_rho = if k == 3 { sigma_far } else { 3e-4 };
+        }
+    }
+    (previous, current, matches)
+}
+
+#[test]
+fn a_far_wall_measured_to_centimetres_still_observes_the_motion_it_faces() {
+    // Its information is 1e-4 of the floor's: a weighted observability test took the motion
+    // along the hall for unobserved and handed the filter the prior there instead.
+    let dr = Vector3::new(0.3, 0.01, -0.02);
+    let (previous, current, matches) = hallway_with_a_coarse_surface_ahead(Vector3::x(), 0.03, &dr);
+    let none = Matrix3::zeros();
+    let solution = solve_displacement(
+        &previous,
+        &current,
+        &matches,
+        None,
+        &Vector3::zeros(),
+        &none,
+        &[],
+    )
+    .unwrap();
+    assert!((solution.x - dr).norm() < 1e-9);
+    let sigma_along = solution.covariance[(0, 0)].sqrt();
+    assert!(
+        (sigma_along - 0.03 * 2f64.sqrt()).abs() < 1e-4,
+        "{sigma_along}"
+    );
+}
+
+#[test]
+fn a_direction_left_free_is_the_one_the_weighted_rows_hold_least_of() {
+    // A surface nearly parallel to the walls (10 mrad off) counts for nothing along the hall,
+    // however precise; the free direction then must be square to what the precise rows
+    // measure, or the fused directions would carry a share of whatever fills the free one.
+    let dr = Vector3::new(0.3, 0.01, -0.02);
+    let board = Vector3::new(0.01, 1.0, 0.0);
+    let (previous, current, matches) = hallway_with_a_coarse_surface_ahead(board, 0.05, &dr);
+    let none = Matrix3::zeros();
+    let err = solve_displacement(
+        &previous,
+        &current,
+        &matches,
+        None,
+        &Vector3::zeros(),
+        &none,
+        &[],
+    )
+    .unwrap_err();
+    let SolveError::UnderDetermined { unobservable } = &err else {
+        panic!("{err}")
+    };
+    assert_eq!(unobservable.len(), 1);
+    assert!(unobservable[0].y.abs() < 1e-5, "{err}");
+}
+
 #[test]
 fn two_walls_leave_the_vertical_unobservable() {
     let world = [
