@@ -113,11 +113,14 @@ impl LinearSystem {
         })
     }
 
-    /// As `solve`, when `free` directions are already known to be unobserved (judged on the
-    /// geometry alone): then refuses, naming the `free` directions the weighted information
-    /// holds least of. Those are what the observed directions must be square to; any other
-    /// choice would hand the observed ones a share of whatever is assumed along the free ones.
-    pub(crate) fn solve_leaving_free(self, free: usize) -> Result<Solution, SolveError> {
+    /// As `solve`, for rows whose `H` are unit normals, judging what they observe on the normals
+    /// alone (`H^T H` within `PARALLEL_TOLERANCE`): a far wall measured to centimetres beside a
+    /// floor measured to a fraction of a millimetre still observes the motion it faces. The
+    /// directions it then names free are the weighted information's weakest, those the
+    /// observed directions must be square to: any other choice would hand the observed ones a
+    /// share of whatever is assumed along the free ones.
+    pub(crate) fn solve_on_normals(self) -> Result<Solution, SolveError> {
+        let free = directions_below(&gram(&self.h), PARALLEL_TOLERANCE).len();
         if free == 0 {
             return self.solve();
         }
@@ -158,8 +161,13 @@ pub(crate) fn directions_below(matrix: &Matrix3<f64>, tolerance: f64) -> Vec<Vec
         .collect()
 }
 
+/// `H^T H`: the rows' geometry without their weights.
+fn gram(h: &DMatrix<f64>) -> Matrix3<f64> {
+    (h.transpose() * h).fixed_view::<3, 3>(0, 0).into()
+}
+
 fn dilution(h: &DMatrix<f64>) -> Dilution {
-    let gram: Matrix3<f64> = (h.transpose() * h).fixed_view::<3, 3>(0, 0).into();
+    let gram = gram(h);
     let eigen = SymmetricEigen::new(gram);
     let condition = eigen.eigenvalues.max() / eigen.eigenvalues.min().max(f64::MIN_POSITIVE);
     let per_axis = gram

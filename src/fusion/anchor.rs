@@ -22,8 +22,8 @@
 
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
-use crate::least_squares::{directions_below, Solution, SolveError, PARALLEL_TOLERANCE};
-use crate::odometry::displacement::solve_displacement;
+use crate::least_squares::{Solution, SolveError, PARALLEL_TOLERANCE};
+use crate::odometry::displacement::displacement_system;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::{LineRef, Plane};
 use crate::odometry::uncertainty::PlaneUncertainty;
@@ -146,7 +146,10 @@ impl Anchored {
     pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
         let mut excluded = excluded.to_vec();
         excluded.extend(&self.epoch_excluded);
-        let solution = solve_displacement(
+        // An anchor held loosely beside planes of a millimetre (two free directions under a
+        // vague prior) would pass a test on the normals and be fused as if the planes had
+        // pinned what it holds: the weighted information must carry every direction.
+        displacement_system(
             &self.previous,
             &self.current,
             &self.matches,
@@ -154,25 +157,8 @@ impl Anchored {
             &self.prior,
             &self.prior_covariance,
             &excluded,
-        )?;
-        refuse_loose_anchors(solution)
-    }
-}
-
-/// Refuses an anchored displacement whose weakest direction carries at most
-/// `PARALLEL_TOLERANCE` of the strongest's information: an anchor held loosely beside planes of
-/// a millimetre (two free directions under a vague prior) would otherwise be fused as if the
-/// planes had pinned what it holds.
-fn refuse_loose_anchors(solution: Solution) -> Result<Solution, SolveError> {
-    let information = solution
-        .covariance
-        .try_inverse()
-        .ok_or(SolveError::BadCovariance)?;
-    let unobservable = directions_below(&information, PARALLEL_TOLERANCE);
-    if unobservable.is_empty() {
-        Ok(solution)
-    } else {
-        Err(SolveError::UnderDetermined { unobservable })
+        )?
+        .solve_within(PARALLEL_TOLERANCE)
     }
 }
 
@@ -180,6 +166,7 @@ fn refuse_loose_anchors(solution: Solution) -> Result<Solution, SolveError> {
 mod tests {
     use super::*;
     use crate::filter::Observability;
+    use crate::odometry::displacement::solve_displacement;
 
     const TRUTH: Vector3<f64> = Vector3::new(0.8, 0.05, -0.02);
     const WALLS_AND_FLOOR: [([f64; 3], f64); 3] = [

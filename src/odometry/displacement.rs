@@ -13,9 +13,7 @@
 
 use super::matching::PlaneMatch;
 use super::planes::Plane;
-use crate::least_squares::{
-    directions_below, LinearSystem, Solution, SolveError, PARALLEL_TOLERANCE,
-};
+use crate::least_squares::{LinearSystem, Solution, SolveError};
 use nalgebra::{DMatrix, DVector, Matrix3, UnitQuaternion, Vector3};
 
 struct PlaneRow {
@@ -61,7 +59,8 @@ impl PlaneRow {
     }
 }
 
-/// Weighted least squares for dR, leaving out the matches listed in `excluded`.
+/// Weighted least squares for dR, leaving out the matches listed in `excluded`, observing what
+/// the planes' normals observe (`LinearSystem::solve_on_normals`).
 pub(crate) fn solve_displacement(
     previous: &[Plane],
     current: &[Plane],
@@ -71,6 +70,28 @@ pub(crate) fn solve_displacement(
     prior_covariance: &Matrix3<f64>,
     excluded: &[usize],
 ) -> Result<Solution, SolveError> {
+    displacement_system(
+        previous,
+        current,
+        matches,
+        rotation,
+        prior_displacement,
+        prior_covariance,
+        excluded,
+    )?
+    .solve_on_normals()
+}
+
+/// The rows of `solve_displacement`, for a caller that judges the system its own way.
+pub(crate) fn displacement_system(
+    previous: &[Plane],
+    current: &[Plane],
+    matches: &[PlaneMatch],
+    rotation: Option<&UnitQuaternion<f64>>,
+    prior_displacement: &Vector3<f64>,
+    prior_covariance: &Matrix3<f64>,
+    excluded: &[usize],
+) -> Result<LinearSystem, SolveError> {
     let active = || {
         matches
             .iter()
@@ -83,12 +104,6 @@ pub(crate) fn solve_displacement(
                 )
             })
     };
-    // Judged on the normals alone, as the rotation is: a far wall measured to centimetres
-    // beside a floor measured to a fraction of a millimetre still observes the motion it faces.
-    let geometry: Matrix3<f64> = active()
-        .map(|(_, row)| row.normal * row.normal.transpose())
-        .sum();
-    let free = directions_below(&geometry, PARALLEL_TOLERANCE).len();
     let planes = active().count();
     let mut system = LinearSystem {
         h: DMatrix::zeros(planes, 3),
@@ -106,5 +121,5 @@ pub(crate) fn solve_displacement(
         system.r[(row, row)] = variance;
         system.plane_of_row.push(k);
     }
-    system.solve_leaving_free(free)
+    Ok(system)
 }
