@@ -302,8 +302,7 @@ impl SharedTerms {
             carried_mean: Vector3::zeros(),
             noise: *covariance,
             current: shared.map_or_else(Matrix3::zeros, |s| s.current[block]),
-        }
-        .carrying_what_it_holds();
+        };
         let (Some(shared), Some(carried)) = (shared, carried) else {
             return independent;
         };
@@ -320,25 +319,8 @@ impl SharedTerms {
             l,
             carried_mean: l * carried.mean[block],
             noise,
-            current: shared.current[block],
+            ..independent
         }
-        .carrying_what_it_holds()
-    }
-
-    /// The noise carried out to the next pose is part of this pose's own, so it can be no
-    /// larger along any direction. A plane that two matches share (one wall split in two
-    /// segments, both matched to its single plane of the other epoch) adds its maps
-    /// coherently and can claim more: carried out, that would leave the filter's covariance
-    /// with negative variances (seen on `random-room-15` at 10 Hz: the position's went to
-    /// -8e-4 m^2 within a second). Such a pose carries nothing out; the next one then counts
-    /// its reference planes' noise as its own.
-    fn carrying_what_it_holds(mut self) -> Self {
-        let left = self.noise - self.current;
-        let largest = self.noise.symmetric_eigen().eigenvalues.amax();
-        if left.symmetric_eigen().eigenvalues.min() < -1e-9 * largest {
-            self.current = Matrix3::zeros();
-        }
-        self
     }
 }
 
@@ -363,28 +345,4 @@ fn rotation_residual(predicted: &UnitQuaternion<f64>, measured: &Vector3<f64>) -
 
 fn set(h: &mut Jacobian3, column: usize, block: &Matrix3<f64>) {
     h.fixed_view_mut::<3, 3>(0, column).copy_from(block);
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn shared(current: f64) -> SharedNoise {
-        SharedNoise {
-            with_previous: [Matrix3::zeros(); 2],
-            current: [Matrix3::identity() * current; 2],
-        }
-    }
-
-    #[test]
-    fn a_pose_carries_out_no_more_noise_than_it_holds() {
-        let covariance = Matrix3::identity() * 1e-6;
-        let within = SharedTerms::new(Some(&shared(0.5e-6)), None, 1, &covariance);
-        assert_eq!(within.current, Matrix3::identity() * 0.5e-6);
-        // Carried out, more than its own would leave the next update's covariance with negative
-        // variances.
-        let beyond = SharedTerms::new(Some(&shared(2e-6)), None, 1, &covariance);
-        assert_eq!(beyond.current, Matrix3::zeros());
-        assert_eq!(beyond.noise, covariance);
-    }
 }
