@@ -527,15 +527,9 @@ fn assert_honest_or_unusable(scenario: &Scenario, fusion: &Fusion) {
     );
 }
 
-/// How far off a usable velocity is wrong, in its sigmas. An honest estimate lies beyond three
-/// sigmas on 0.3 % of its axes, so "never beyond three" over a run's hundreds of epoch-axes
-/// fails an honest filter now and then (random room 103 once met 3.07 sigmas, 2.9 mm/s, in
-/// 240 epoch-axes); the runaways these runs guard against stood ten to a hundred sigmas off.
-const WRONG_SIGMAS: f64 = 4.0;
-
 /// Asserts that no epoch of a run as `run_at_rate` left the estimate usable (converged, every
-/// velocity sigma within the autopilot profile's 0.5 m/s) with its velocity more than
-/// `WRONG_SIGMAS` off on some axis; the failure lists those epochs (time, largest error).
+/// velocity sigma within the autopilot profile's 0.5 m/s) with its velocity more than three
+/// sigmas off on some axis; the failure lists those epochs (time, largest error).
 fn assert_never_usable_and_wrong(
     name: &str,
     seed: u64,
@@ -553,7 +547,7 @@ fn assert_never_usable_and_wrong(
         |scenario, fusion, record| {
             let (error, sigma) = velocity_error_and_sigma(scenario, fusion);
             let usable = fusion.estimate().converged && sigma.max() <= 0.5;
-            if usable && (0..3).any(|k| error[k].abs() > WRONG_SIGMAS * sigma[k]) {
+            if usable && (0..3).any(|k| error[k].abs() > 3.0 * sigma[k]) {
                 wrong.push((record.t, error.amax()));
             }
         },
