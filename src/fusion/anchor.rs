@@ -29,9 +29,14 @@ use crate::odometry::planes::{LineRef, Plane};
 use crate::odometry::uncertainty::PlaneUncertainty;
 use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
 
-/// Sigma of the anchor of a sole free direction, m: beside plane rows of a few millimetres it
-/// stays within the solve's condition limit whatever the prior, so the two observed directions
-/// are never refused. Its value along its direction is never fused.
+/// Largest sigma of the anchor of a sole free direction, m. The free direction is the weakest
+/// of the planes' weighted information (`LinearSystem::solve_on_normals`), so the anchor adds
+/// information along an eigenvector of it and leaves the observed directions' solution as the
+/// planes alone make it, whatever its sigma; its value along its direction is never fused. It
+/// is held at least as firmly as all the rows together (`sole_anchor_sigma`), so that the
+/// solve's condition limit never refuses the two observed directions: beside a floor measured
+/// to 0.3 mm a fixed 1 cm anchor carried under 1e-3 of the floor's weight, and an open room
+/// started in motion fused nothing for ten seconds while its velocity sigma grew to 5 m/s.
 const SOLE_ANCHOR_SIGMA_M: f64 = 0.01;
 /// Smallest and largest sigma given to each anchor of two free directions, m: from the prior,
 /// so that they are refused once the filter no longer knows the motion along them (above).
@@ -58,6 +63,8 @@ pub(super) struct Anchored {
     prior_covariance: Matrix3<f64>,
     /// The matches the epoch left out of its own solves.
     epoch_excluded: Vec<usize>,
+    /// Matches from this index on are anchors.
+    first_anchor: usize,
     pub unobservable: Vec<Vector3<f64>>,
 }
 
@@ -93,12 +100,13 @@ impl Anchored {
             prior: prior.translation,
             prior_covariance: prior.translation_covariance,
             epoch_excluded: epoch.excluded.clone(),
+            first_anchor: epoch.matches.len(),
             unobservable: Vec::with_capacity(unobservable.len()),
         };
         for direction in unobservable {
             let u = direction.normalize();
             let sigma = match unobservable.len() {
-                1 => SOLE_ANCHOR_SIGMA_M,
+                1 => sole_anchor_sigma(previous, current, &epoch.matches),
                 _ => u
                     .dot(&(prior.translation_covariance * u))
                     .sqrt()
@@ -146,9 +154,7 @@ impl Anchored {
     pub(crate) fn solve(&self, excluded: &[usize]) -> Result<Solution, SolveError> {
         let mut excluded = excluded.to_vec();
         excluded.extend(&self.epoch_excluded);
-        // An anchor held loosely beside planes of a millimetre (two free directions under a
-        // vague prior) would pass a test on the normals and be fused as if the planes had
-        // pinned what it holds: the weighted information must carry every direction.
+        self.refuse_loose_anchors(&excluded)?;
         displacement_system(
             &self.previous,
             &self.current,
@@ -158,8 +164,55 @@ impl Anchored {
             &self.prior_covariance,
             &excluded,
         )?
-        .solve_within(PARALLEL_TOLERANCE)
+        .solve_on_normals()
     }
+
+    /// An anchor held loosely beside planes of a millimetre (two free directions under a vague
+    /// prior) would pass a test on the normals and be fused as if the planes had pinned what
+    /// it holds: each must carry `PARALLEL_TOLERANCE` of the planes' weight. The planes are
+    /// judged on their normals, as the plain solve judges them: a far wall measured to
+    /// centimetres beside walls measured to a millimetre observes the motion it faces.
+    fn refuse_loose_anchors(&self, excluded: &[usize]) -> Result<(), SolveError> {
+        let (planes, anchors) = self.matches.split_at(self.first_anchor);
+        let weight = |m: &PlaneMatch| {
+            let variance = self.previous[m.previous].uncertainty.sigma_rho.powi(2)
+                + self.current[m.current].uncertainty.sigma_rho.powi(2);
+            variance.max(f64::MIN_POSITIVE).recip()
+        };
+        let planes_weight: f64 = planes
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !excluded.contains(k))
+            .map(|(_, m)| weight(m))
+            .sum();
+        let loose: Vec<Vector3<f64>> = anchors
+            .iter()
+            .zip(&self.unobservable)
+            .filter(|(m, _)| weight(m) < PARALLEL_TOLERANCE * planes_weight)
+            .map(|(_, u)| *u)
+            .collect();
+        if loose.is_empty() {
+            Ok(())
+        } else {
+            Err(SolveError::UnderDetermined {
+                unobservable: loose,
+            })
+        }
+    }
+}
+
+/// The sigma of a sole anchor: `SOLE_ANCHOR_SIGMA_M`, or that of all the matched planes'
+/// distance rows combined where they are firmer.
+fn sole_anchor_sigma(previous: &EpochPlanes, current: &EpochPlanes, matches: &[PlaneMatch]) -> f64 {
+    let information: f64 = matches
+        .iter()
+        .map(|m| {
+            let variance = previous.planes[m.previous].uncertainty.sigma_rho.powi(2)
+                + current.planes[m.current].uncertainty.sigma_rho.powi(2);
+            1.0 / variance.max(f64::MIN_POSITIVE)
+        })
+        .sum();
+    SOLE_ANCHOR_SIGMA_M.min(information.sqrt().recip())
 }
 
 #[cfg(test)]
@@ -215,12 +268,26 @@ mod tests {
         prior_sigma_m: f64,
         turn_rad: f64,
     ) -> Option<Anchored> {
+        let sigmas = vec![sigma_rho; surfaces.len()];
+        anchored_with_sigmas(surfaces, &sigmas, prior_sigma_m, turn_rad)
+    }
+
+    /// As `anchored_turning`, each surface measured to its own sigma.
+    fn anchored_with_sigmas(
+        surfaces: &[([f64; 3], f64)],
+        sigmas: &[f64],
+        prior_sigma_m: f64,
+        turn_rad: f64,
+    ) -> Option<Anchored> {
         let epoch_planes = |shift: &Vector3<f64>, t_ref: f64| EpochPlanes {
             t_ref,
             planes: surfaces
                 .iter()
+                .zip(sigmas)
                 .enumerate()
-                .map(|(k, (n, rho))| plane(k, *n, rho - Vector3::from(*n).dot(shift), sigma_rho))
+                .map(|(k, ((n, rho), sigma))| {
+                    plane(k, *n, rho - Vector3::from(*n).dot(shift), *sigma)
+                })
                 .collect(),
             ..EpochPlanes::default()
         };
@@ -284,6 +351,32 @@ mod tests {
         let solution = anchored.solve(&[]).unwrap();
         assert!((solution.x.y - TRUTH.y).abs() < 1e-9);
         assert!((solution.x.z - TRUTH.z).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_sole_anchor_is_accepted_beside_a_floor_measured_to_a_tenth_of_a_millimetre() {
+        let anchored = anchored_with_sigmas(&WALLS_AND_FLOOR, &[0.001, 0.001, 1e-4], 0.3, 0.0);
+        let solution = anchored.unwrap().solve(&[]).unwrap();
+        assert!((solution.x.y - TRUTH.y).abs() < 1e-9);
+        assert!((solution.x.z - TRUTH.z).abs() < 1e-9);
+    }
+
+    /// The paper's rig in an open room: walls to either side measured to a millimetre, the
+    /// far wall ahead only to 3 cm (a plumb plane through one level line), no floor. The
+    /// vertical is free; the motion ahead is the far wall's to measure.
+    #[test]
+    fn a_coarse_far_wall_beside_millimetre_walls_still_measures_the_motion_it_faces() {
+        let surfaces = [
+            WALLS_AND_FLOOR[0],
+            WALLS_AND_FLOOR[1],
+            ([-1.0, 0.0, 0.0], 2.5),
+        ];
+        let anchored = anchored_with_sigmas(&surfaces, &[0.001, 0.001, 0.03], 0.6, 0.0).unwrap();
+        assert_eq!(anchored.unobservable.len(), 1);
+        assert!(anchored.unobservable[0].z.abs() > 0.999);
+        let solution = anchored.solve(&[]).unwrap();
+        assert!((solution.x.x - TRUTH.x).abs() < 1e-9);
+        assert!((solution.x.y - TRUTH.y).abs() < 1e-9);
     }
 
     #[test]
