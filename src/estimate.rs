@@ -58,8 +58,9 @@ pub struct Estimate {
     pub since_last_fused: f64,
     /// A sensor is stale or the IMU had a gap: the estimate is dead-reckoning or worse.
     pub degraded: bool,
-    /// The filter has converged since its last start or restart; before, the autopilot must
-    /// not use the estimate, whatever its covariance says.
+    /// The filter has converged since its last start or restart, and its gate did not refuse
+    /// the last relative pose; otherwise the autopilot must not use the estimate, whatever its
+    /// covariance says.
     pub converged: bool,
 }
 

@@ -210,6 +210,10 @@ pub struct Eskf {
     /// Set once the estimate has converged after the last (re)start
     /// (`FilterConfig::converged_after_epochs`).
     converged: bool,
+    /// The gate refused the last relative pose that measured anything: the filter's prediction
+    /// and the odometry disagree beyond its covariance, so the estimate is not to be used
+    /// until a relative pose is fused again.
+    disputed: bool,
     /// Relative poses fused since the last (re)start.
     fused_since_start: u32,
     /// The reference time of the first of them.
@@ -304,6 +308,7 @@ impl Eskf {
             last_fused: None,
             guard: DivergenceGuard::new(&config),
             converged: false,
+            disputed: false,
             fused_since_start: 0,
             first_fused_ref: None,
             window_still: true,
@@ -736,6 +741,7 @@ impl Eskf {
         self.zero_motion = None;
         self.guard.clear();
         self.converged = false;
+        self.disputed = false;
         self.fused_since_start = 0;
         self.first_fused_ref = None;
     }
@@ -821,7 +827,7 @@ impl Eskf {
             integrity: None,
             since_last_fused: self.last_fused.map_or(f64::INFINITY, |last| t - last),
             degraded: self.degraded.is_some() || self.phase == FilterPhase::Aligning,
-            converged: self.converged,
+            converged: self.converged && !self.disputed,
         }
     }
 

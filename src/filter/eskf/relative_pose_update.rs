@@ -87,6 +87,9 @@ impl Eskf {
             self.last_fused = Some(now);
             self.degraded = None;
         }
+        if report.dof > 0 {
+            self.disputed = !report.accepted;
+        }
         if !self.converged && surprised(&report) {
             self.fused_since_start = 0;
             self.first_fused_ref = None;
