@@ -242,7 +242,7 @@ impl Fusion {
         (record.outcome, record.update) = self.fuse(&measurement);
         if record.outcome == EpochOutcome::Fused {
             let surprised = record.update.is_some_and(|u| surprises(u.nis, u.dof));
-            self.settle_provisional(&cleared, previous.t_ref, surprised);
+            self.settle_provisional(&cleared, [previous.t_ref, current.t_ref], surprised);
         }
         record.provisional_directions = self.provisional.len();
         noise_maps
@@ -382,7 +382,12 @@ impl Fusion {
 
     /// Holds the lone directions the filter just fused unchecked, and lets go of those it
     /// fused checked (`witnesses::Provisional`). A restart forgets them with the state.
-    fn settle_provisional(&mut self, cleared: &Cleared, t_previous: f64, surprised: bool) {
+    fn settle_provisional(
+        &mut self,
+        cleared: &Cleared,
+        [t_previous, t]: [f64; 2],
+        surprised: bool,
+    ) {
         let to_navigation = self
             .filter
             .pose_at_or_after(t_previous)
@@ -400,6 +405,7 @@ impl Fusion {
             [rotation, displacement],
             &to_navigation,
             surprised,
+            t,
         );
     }
 

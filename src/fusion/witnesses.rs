@@ -252,6 +252,9 @@ impl PriorWitness {
 pub(super) struct Provisional {
     rotation: Vec<Vector3<f64>>,
     displacement: Vec<Vector3<f64>>,
+    /// Held tilt axes (navigation) and since when the displacement fused square to each has
+    /// agreed with the filter, s (`vouch_for_tilts`).
+    tilt_evidence: Vec<(Vector3<f64>, f64)>,
 }
 
 /// Directions closer than this (cosine, 10 deg) count as one.
@@ -271,6 +274,7 @@ impl Provisional {
     pub(super) fn clear(&mut self) {
         self.rotation.clear();
         self.displacement.clear();
+        self.tilt_evidence.clear();
     }
 
     /// After an epoch whose relative pose the filter fused: `checked` its lone directions,
@@ -284,13 +288,14 @@ impl Provisional {
     /// four epochs later, the update (NIS 11.8 on 3 degrees of freedom) split the surprise
     /// between the velocity and the accelerometer's bias and scale, which then ran the vertical
     /// velocity off at 0.18 m/s^2 with a sigma of 1 cm/s. A surprised update releases nothing;
-    /// a later one that agrees does.
+    /// a later one that agrees does. `t`: the epoch's time, s.
     pub(super) fn after_fusion(
         &mut self,
         checked: &CheckedLone,
         [rotation, displacement]: [Option<Observability>; 2],
         to_navigation: &UnitQuaternion<f64>,
         surprised: bool,
+        t: f64,
     ) {
         settle(
             &mut self.rotation,
@@ -306,8 +311,69 @@ impl Provisional {
             to_navigation,
             !surprised,
         );
+        let vouching = |w: &Vector3<f64>| {
+            !surprised
+                && displacement.is_some_and(|o| {
+                    o.contains(&to_navigation.inverse_transform_vector(w), SAME_DIRECTION)
+                })
+        };
+        self.vouch_for_tilts(&vouching, t);
+    }
+
+    /// A held tilt is also checked by gravity. The paper's rig in a room rarely solves a
+    /// rotation about a level axis (the walls' normals are level, and a wall line measures no
+    /// rotation), so a tilt one plane alone gave during a start in motion waited for a check
+    /// that never came, and the estimate with it: the open room started in motion stayed
+    /// unusable for the whole run in starts whose velocity was right to 1 cm/s. But a tilt
+    /// `delta` off puts `g delta` of acceleration square to its axis, and a velocity known to
+    /// centimetres a second along that direction leaves no room for it within seconds: the
+    /// filter learns the tilt from the velocity as any moving INS does, and a wrong one surprises
+    /// it. So a held tilt axis is released once every epoch for `TILT_VOUCH_S` has fused,
+    /// unsurprised, the displacement square to it (`vouching`), where no held direction of the
+    /// displacement is: that evidence must not itself be in doubt. A heading is not released so.
+    fn vouch_for_tilts(&mut self, vouching: &dyn Fn(&Vector3<f64>) -> bool, t: f64) {
+        let Self {
+            rotation,
+            displacement,
+            tilt_evidence,
+        } = self;
+        tilt_evidence.retain(|(axis, _)| rotation.contains(axis));
+        rotation.retain(|axis| {
+            let square = Vector3::z().cross(axis);
+            let agreeing = axis.z.abs() <= MAX_TILT_AXIS_SINE
+                && vouching(&square.normalize())
+                && !displacement
+                    .iter()
+                    .any(|held| held.dot(&square).abs() > SAME_DIRECTION * square.norm());
+            let known = tilt_evidence.iter().position(|(held, _)| held == axis);
+            match (agreeing, known) {
+                (false, Some(k)) => {
+                    tilt_evidence.swap_remove(k);
+                    true
+                }
+                (false, None) => true,
+                (true, None) => {
+                    tilt_evidence.push((*axis, t));
+                    true
+                }
+                (true, Some(k)) => {
+                    let released = t - tilt_evidence[k].1 >= TILT_VOUCH_S;
+                    if released {
+                        tilt_evidence.swap_remove(k);
+                    }
+                    !released
+                }
+            }
+        });
     }
 }
+
+/// A held rotation axis within 30 degrees of level is a tilt (`Provisional::vouch_for_tilts`).
+const MAX_TILT_AXIS_SINE: f64 = 0.5;
+/// How long the displacement square to a held tilt must agree with the filter before it
+/// vouches for the tilt, s: 3 s at 1 cm/s leaves a tilt at most 1 mrad off unseen, and no
+/// sooner than the filter's own convergence (`filter.converged_after_epochs` at 1 Hz).
+const TILT_VOUCH_S: f64 = 3.0;
 
 /// Adds the unchecked lone directions that went in and the contradicted ones, and, if
 /// `releases`, drops the held directions that went in checked: by the prediction, or by two
@@ -568,6 +634,59 @@ mod tests {
         assert_eq!(surer.check(&Vector3::x(), &thresholds), Check::Unchecked);
     }
 
+    /// The open room started in motion: a lone plane gave the pitch unchecked, and no rotation
+    /// solve about the level axis came after it.
+    #[test]
+    fn a_held_tilt_is_released_by_seconds_of_velocity_square_to_it() {
+        let lone_pitch = CheckedLone {
+            rotation: vec![(Vector3::y(), Check::Unchecked)],
+            displacement: Vec::new(),
+        };
+        let level = UnitQuaternion::identity();
+        let full = Some(Observability::full());
+        let along_x = Some(Observability::from_unobservable(&[
+            Vector3::y(),
+            Vector3::z(),
+        ]));
+        let along_y = Some(Observability::from_unobservable(&[
+            Vector3::x(),
+            Vector3::z(),
+        ]));
+        let epochs = |held: &mut Provisional, fused, surprised: &[bool], from: f64| {
+            for (k, &surprise) in surprised.iter().enumerate() {
+                let t = from + k as f64;
+                held.after_fusion(&CheckedLone::default(), [None, fused], &level, surprise, t);
+            }
+        };
+        let mut held = Provisional::default();
+        held.after_fusion(&lone_pitch, [full, full], &level, false, 0.0);
+        assert_eq!(held.len(), 1);
+        epochs(&mut held, along_y, &[false; 6], 1.0);
+        assert_eq!(
+            held.len(),
+            1,
+            "the velocity along the axis says nothing of the tilt"
+        );
+        epochs(
+            &mut held,
+            along_x,
+            &[false, false, true, false, false, false],
+            7.0,
+        );
+        assert_eq!(held.len(), 1, "a surprise starts the evidence again");
+        epochs(&mut held, along_x, &[false], 13.0);
+        assert!(held.is_empty(), "3 s of agreeing velocity square to it");
+
+        let lone_heading = CheckedLone {
+            rotation: vec![(Vector3::z(), Check::Unchecked)],
+            displacement: Vec::new(),
+        };
+        let mut held = Provisional::default();
+        held.after_fusion(&lone_heading, [full, full], &level, false, 0.0);
+        epochs(&mut held, full, &[false; 8], 1.0);
+        assert_eq!(held.len(), 1, "gravity vouches for no heading");
+    }
+
     #[test]
     fn a_surprised_update_releases_no_held_direction() {
         let floor_wrongly_matched = CheckedLone {
@@ -577,13 +696,13 @@ mod tests {
         let level = UnitQuaternion::identity();
         let full = Some(Observability::full());
         let mut held = Provisional::default();
-        held.after_fusion(&floor_wrongly_matched, [None, full], &level, false);
+        held.after_fusion(&floor_wrongly_matched, [None, full], &level, false, 0.0);
         assert_eq!(held.len(), 1);
         // The floor and the ceiling measure the vertical together, but surprise the filter.
         let two_planes = CheckedLone::default();
-        held.after_fusion(&two_planes, [None, full], &level, true);
+        held.after_fusion(&two_planes, [None, full], &level, true, 1.0);
         assert_eq!(held.len(), 1, "a surprise vouches for nothing");
-        held.after_fusion(&two_planes, [None, full], &level, false);
+        held.after_fusion(&two_planes, [None, full], &level, false, 2.0);
         assert!(held.is_empty(), "an update that agrees lets go");
     }
 }
