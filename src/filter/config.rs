@@ -12,6 +12,10 @@ use crate::sensors::Mount;
 const DEG: f64 = std::f64::consts::PI / 180.0;
 /// Standard gravity (CGPM 1901), the default magnitude of the gravity model.
 pub(crate) const STANDARD_GRAVITY: f64 = 9.80665;
+/// The paper's odometry epoch, s. Settings that count epochs (`converged_after_epochs`,
+/// `divergence_window`) count these at faster epoch rates too: what they judge settles with
+/// time, not with the number of epochs.
+pub(crate) const PAPER_EPOCH_S: f64 = 1.0;
 
 /// How an odometry epoch's relative pose enters the filter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -157,7 +161,8 @@ pub struct FilterConfig {
     /// How often the speed prior is fused, s: about the time over which the platform's
     /// velocity changes by its envelope (a hover's drift, a walk's turn).
     pub speed_prior_interval_s: f64,
-    /// Fused relative poses over which the divergence guard sums the NIS.
+    /// Fused relative poses over which the divergence guard sums the NIS, spanning as many
+    /// seconds at faster epoch rates.
     pub divergence_window: u32,
     /// Relative poses refused by the gate in a row that count as divergence.
     pub divergence_refused_in_row: u32,

@@ -2,18 +2,10 @@
 //! fused against the clone (`Cloned`) or as a mean velocity and rate (`Velocity`).
 
 use super::{Eskf, FilterPhase, ResetReason, UpdateError, UpdateKind, UpdateReport};
-use crate::filter::config::RelativePoseUpdate;
+use crate::filter::config::{RelativePoseUpdate, PAPER_EPOCH_S};
 use crate::filter::consistency::surprises;
 use crate::filter::history::Pose;
 use crate::filter::relative_pose::RelativePoseMeasurement;
-
-/// The epoch `FilterConfig::converged_after_epochs` counts in, s: the paper's. Faster epochs
-/// must span as long (from the first one's reference to the last one's end, the span of the
-/// epochs but the first), since what the first epochs leave unsettled (a guessed velocity and
-/// tilt, the biases they imply) settles with time, not with the count: at 10 Hz three epochs
-/// took 0.3 s, and in random room 131 the start in motion counted as converged 1 s in with a
-/// gyro bias 7 mrad/s off.
-const CONVERGENCE_EPOCH_S: f64 = 1.0;
 
 impl Eskf {
     /// Fuses one odometry epoch in the configured mode; the clone is consumed either way.
@@ -97,12 +89,17 @@ impl Eskf {
             self.fused_since_start += 1;
             let first = *self.first_fused_ref.get_or_insert(measurement.t_ref);
             let epochs = self.config.converged_after_epochs;
-            let span_s = f64::from(epochs.saturating_sub(1)) * CONVERGENCE_EPOCH_S;
+            // Faster epochs must span as long (from the first one's reference to the last one's
+            // end, the span of the epochs but the first), since what the first epochs leave
+            // unsettled (a guessed velocity and tilt, the biases they imply) settles with time,
+            // not with the count: at 10 Hz three epochs took 0.3 s, and in random room 131 the
+            // start in motion counted as converged 1 s in with a gyro bias 7 mrad/s off.
+            let span_s = f64::from(epochs.saturating_sub(1)) * PAPER_EPOCH_S;
             self.converged |= self.fused_since_start >= epochs && measurement.t - first >= span_s;
         }
-        if let Some(divergence) = self
-            .guard
-            .after_update(report.nis, report.dof, report.accepted)
+        if let Some(divergence) =
+            self.guard
+                .after_update(now, report.nis, report.dof, report.accepted, self.converged)
         {
             self.reinitialise(ResetReason::Diverged(divergence));
         }
