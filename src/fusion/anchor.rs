@@ -7,9 +7,9 @@
 //! The anchor's information lies only along its unobservable direction, where the planes have
 //! none, so the solution's observable part is the planes' alone.
 //!
-//! How firmly an anchor is held decides whether the solve accepts it (it refuses a system whose
-//! weakest direction carries less than `PARALLEL_TOLERANCE` of the strongest's weight), and so
-//! whether the epoch gives the filter anything:
+//! How firmly an anchor is held decides whether the solve accepts it (it refuses an anchor that
+//! carries less than `PARALLEL_TOLERANCE` of the planes' weight), and so whether the epoch
+//! gives the filter anything:
 //! - one free direction (a corridor, a hall along its length): always accepted. The two
 //!   observed directions are fused epoch after epoch whatever the filter knows along the third;
 //!   that stays consistent because the filter's attitude lever leaves out the motion along the
@@ -33,10 +33,10 @@ use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose};
 /// of the planes' weighted information (`LinearSystem::solve_on_normals`), so the anchor adds
 /// information along an eigenvector of it and leaves the observed directions' solution as the
 /// planes alone make it, whatever its sigma; its value along its direction is never fused. It
-/// is held at least as firmly as all the rows together (`sole_anchor_sigma`), so that the
-/// solve's condition limit never refuses the two observed directions: beside a floor measured
-/// to 0.3 mm a fixed 1 cm anchor carried under 1e-3 of the floor's weight, and an open room
-/// started in motion fused nothing for ten seconds while its velocity sigma grew to 5 m/s.
+/// is held at least as firmly as all the rows together (`sole_anchor_sigma`), so that
+/// `Anchored::refuse_loose_anchors` never refuses it and the two observed directions with it:
+/// a fixed 1 cm anchor carries under 1e-3 of the weight of a floor measured to a tenth of a
+/// millimetre.
 const SOLE_ANCHOR_SIGMA_M: f64 = 0.01;
 /// Smallest and largest sigma given to each anchor of two free directions, m: from the prior,
 /// so that they are refused once the filter no longer knows the motion along them (above).
@@ -174,11 +174,7 @@ impl Anchored {
     /// centimetres beside walls measured to a millimetre observes the motion it faces.
     fn refuse_loose_anchors(&self, excluded: &[usize]) -> Result<(), SolveError> {
         let (planes, anchors) = self.matches.split_at(self.first_anchor);
-        let weight = |m: &PlaneMatch| {
-            let variance = self.previous[m.previous].uncertainty.sigma_rho.powi(2)
-                + self.current[m.current].uncertainty.sigma_rho.powi(2);
-            variance.max(f64::MIN_POSITIVE).recip()
-        };
+        let weight = |m: &PlaneMatch| distance_weight(&self.previous, &self.current, m);
         let planes_weight: f64 = planes
             .iter()
             .enumerate()
@@ -206,13 +202,16 @@ impl Anchored {
 fn sole_anchor_sigma(previous: &EpochPlanes, current: &EpochPlanes, matches: &[PlaneMatch]) -> f64 {
     let information: f64 = matches
         .iter()
-        .map(|m| {
-            let variance = previous.planes[m.previous].uncertainty.sigma_rho.powi(2)
-                + current.planes[m.current].uncertainty.sigma_rho.powi(2);
-            1.0 / variance.max(f64::MIN_POSITIVE)
-        })
+        .map(|m| distance_weight(&previous.planes, &current.planes, m))
         .sum();
     SOLE_ANCHOR_SIGMA_M.min(information.sqrt().recip())
+}
+
+/// The weight of a match's distance row, `1 / (sigma_rho_i^2 + sigma_rho_j^2)`.
+fn distance_weight(previous: &[Plane], current: &[Plane], m: &PlaneMatch) -> f64 {
+    let variance = previous[m.previous].uncertainty.sigma_rho.powi(2)
+        + current[m.current].uncertainty.sigma_rho.powi(2);
+    variance.max(f64::MIN_POSITIVE).recip()
 }
 
 #[cfg(test)]
