@@ -271,16 +271,19 @@ fn hall_walk_loops_round_its_pillars_and_the_odometer_planes() {
 }
 
 /// With the defaults (level and wall lines) the open room, with the paper's rig, observes all
-/// three displacement axes in a good share of its epochs, where the pairs alone leave one
-/// unobserved in every epoch (the baseline below), and the crossing ends within decimetres
-/// where the pairs drift by metres (3.7-28.8 m over the baseline's seeds).
+/// three displacement axes in all but issue 18's 5 % of its epochs, where the pairs alone leave
+/// one unobserved in every epoch (the baseline below), and the crossing ends within
+/// centimetres where the pairs drift by metres (3.7-28.8 m over the baseline's seeds). Until
+/// planes of parallel lines had to be level within a degree, a leaning one took the floor's
+/// lines and left the vertical unobserved in 18 % of the epochs (docs/accuracy.md, "A floor of
+/// two parallel lines that leaned").
 #[test]
 fn single_line_planes_keep_the_open_room_observed() {
     let run = measure(&scenario("open-room", Rig::Paper, 1.0), &settings(1.0));
     println!("{}", serde_json::to_string(&run).unwrap());
-    assert!(run.unobserved_share < 0.7, "{}", run.unobserved_share);
+    assert!(run.unobserved_share < 0.05, "{}", run.unobserved_share);
     assert!(
-        run.accuracy.horizontal_error_end_m < 0.5,
+        run.accuracy.horizontal_error_end_m < 0.1,
         "{}",
         run.accuracy.horizontal_error_end_m
     );
