@@ -80,18 +80,13 @@ impl LinearSystem {
         self.y.len()
     }
 
-    /// Weighted least squares, refusing rather than inverting an ill-conditioned geometry.
+    /// Weighted least squares, refusing rather than inverting an ill-conditioned geometry
+    /// (directions whose information is at most `OBSERVABILITY_TOLERANCE` of the strongest's).
     pub fn solve(self) -> Result<Solution, SolveError> {
-        self.solve_within(OBSERVABILITY_TOLERANCE)
-    }
-
-    /// As `solve`, refusing directions whose information is at most `tolerance` of the
-    /// strongest direction's.
-    pub(crate) fn solve_within(self, tolerance: f64) -> Result<Solution, SolveError> {
         let r_chol = self.r.clone().cholesky().ok_or(SolveError::BadCovariance)?;
         let r_inv_y = r_chol.solve(&self.y);
         let information = self.information(&r_chol);
-        let unobservable = directions_below(&information, tolerance);
+        let unobservable = directions_below(&information, OBSERVABILITY_TOLERANCE);
         if !unobservable.is_empty() {
             return Err(SolveError::UnderDetermined { unobservable });
         }

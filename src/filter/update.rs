@@ -186,9 +186,10 @@ impl Stacked {
 /// along any fused direction, or the joint covariance of the state and the carried noise turns
 /// indefinite. The per-plane shares are a first-order model and do sum to more (over the
 /// whole block, by 6 % at the median of the hallway hover's poses, 50 % at the 90th
-/// percentile, 7000-fold at worst); in `random-room-15` at 10 Hz the position's variance went to -8e-4 m^2 within a second. With
-/// the correlation shrunk by `1 / sqrt(lambda_max)` of the share whitened by the rows' noise,
-/// `rows_noise - shrink^2 shared` stays positive semi-definite.
+/// percentile, 7000-fold at worst); in `random-room-15` at 10 Hz the position's variance went
+/// to -8e-4 m^2 within a second. With the correlation shrunk by `1 / sqrt(lambda_max)` of the
+/// share whitened by the rows' noise, `rows_noise - shrink^2 shared` stays positive
+/// semi-definite.
 fn correlation_shrink(rows_noise: &Matrix3<f64>, shared: &Matrix3<f64>, rank: usize) -> f64 {
     let fused = |m: &Matrix3<f64>, fill: f64| {
         Matrix3::from_fn(|i, j| match (i < rank, j < rank) {

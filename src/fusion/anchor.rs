@@ -23,7 +23,7 @@
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 
 use crate::least_squares::{Solution, SolveError, PARALLEL_TOLERANCE};
-use crate::odometry::displacement::displacement_system;
+use crate::odometry::displacement::solve_displacement;
 use crate::odometry::matching::PlaneMatch;
 use crate::odometry::planes::{LineRef, Plane};
 use crate::odometry::uncertainty::PlaneUncertainty;
@@ -155,7 +155,7 @@ impl Anchored {
         let mut excluded = excluded.to_vec();
         excluded.extend(&self.epoch_excluded);
         self.refuse_loose_anchors(&excluded)?;
-        displacement_system(
+        solve_displacement(
             &self.previous,
             &self.current,
             &self.matches,
@@ -163,8 +163,7 @@ impl Anchored {
             &self.prior,
             &self.prior_covariance,
             &excluded,
-        )?
-        .solve_on_normals()
+        )
     }
 
     /// An anchor held loosely beside planes of a millimetre (two free directions under a vague
@@ -218,7 +217,6 @@ fn distance_weight(previous: &[Plane], current: &[Plane], m: &PlaneMatch) -> f64
 mod tests {
     use super::*;
     use crate::filter::Observability;
-    use crate::odometry::displacement::solve_displacement;
 
     const TRUTH: Vector3<f64> = Vector3::new(0.8, 0.05, -0.02);
     const WALLS_AND_FLOOR: [([f64; 3], f64); 3] = [

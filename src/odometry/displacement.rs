@@ -70,28 +70,6 @@ pub(crate) fn solve_displacement(
     prior_covariance: &Matrix3<f64>,
     excluded: &[usize],
 ) -> Result<Solution, SolveError> {
-    displacement_system(
-        previous,
-        current,
-        matches,
-        rotation,
-        prior_displacement,
-        prior_covariance,
-        excluded,
-    )?
-    .solve_on_normals()
-}
-
-/// The rows of `solve_displacement`, for a caller that judges the system its own way.
-pub(crate) fn displacement_system(
-    previous: &[Plane],
-    current: &[Plane],
-    matches: &[PlaneMatch],
-    rotation: Option<&UnitQuaternion<f64>>,
-    prior_displacement: &Vector3<f64>,
-    prior_covariance: &Matrix3<f64>,
-    excluded: &[usize],
-) -> Result<LinearSystem, SolveError> {
     let active = || {
         matches
             .iter()
@@ -121,5 +99,5 @@ pub(crate) fn displacement_system(
         system.r[(row, row)] = variance;
         system.plane_of_row.push(k);
     }
-    Ok(system)
+    system.solve_on_normals()
 }
