@@ -9,13 +9,13 @@
 //! | estimate degraded (stale scanner, IMU gap) or covariance not finite | -1 (failed)       |
 //! | no odometry epoch fused yet, or none for more than `stale_after_s` | -1 (failed)        |
 //! | not converged since the start or a restart                         | 0 (do not use)     |
-//! | largest velocity sigma above `unusable_sigma_mps` (an unobserved axis) | 0 (do not use) |
+//! | worst-direction velocity sigma above `unusable_sigma_mps` (unobserved) | 0 (do not use) |
 //! | latest epoch `DetectedNotIsolable` or `UnderDetermined`            | `low` (10)         |
 //! | latest epoch `Ok`                                                  | 1-100 from sigma_v |
 //! | latest epoch `Excluded`                                            | as Ok, capped at `excluded_cap` (75) |
 //!
 //! "From sigma_v" is `100 * reference_sigma_mps / sigma_v` clamped to 1..=100, where sigma_v is
-//! the largest velocity standard deviation. -1 is what both autopilots treat as "do not use":
+//! the standard deviation of the body velocity sent along its worst direction. -1 is what both autopilots treat as "do not use":
 //! PX4 with `EKF2_EV_QMIN >= 1`, ArduPilot with `VISO_QUAL_MIN >= 0` (its default); quality 0
 //! ("not to be used": not converged, or an axis unobserved) needs `VISO_QUAL_MIN = 1`. The
 //! confidence of VISION_POSITION_DELTA is the same number with -1 mapped to 0; ArduPilot turns it
@@ -169,7 +169,7 @@ impl Default for QualityPolicy {
 impl QualityPolicy {
     /// ODOMETRY quality: -1 failed, 1 worst .. 100 best.
     pub fn quality(&self, estimate: &Estimate) -> i8 {
-        let Some(sigma_v) = largest_sigma(&estimate.velocity_covariance) else {
+        let Some(sigma_v) = largest_sigma(&estimate.body_velocity_covariance()) else {
             return -1;
         };
         // Written so that a NaN age also counts as stale.
@@ -197,10 +197,17 @@ impl QualityPolicy {
     }
 }
 
+/// The sigma along the covariance's worst direction, not its worst axis: a direction nothing
+/// observes, held by the speed prior at 0.53 m/s, lay 45 degrees off both level axes while
+/// `hallway-flight` turned, and its axes' sigmas of 0.38 m/s sent a velocity 0.86 m/s off with
+/// quality 10. Taken of the body-velocity covariance the autopilot is sent.
 fn largest_sigma(covariance: &Matrix3<f64>) -> Option<f64> {
-    let diagonal = covariance.diagonal();
-    let sane = diagonal.iter().all(|v| v.is_finite() && *v >= 0.0);
-    sane.then(|| diagonal.max().sqrt().max(f64::MIN_POSITIVE))
+    let sane =
+        covariance.iter().all(|v| v.is_finite()) && covariance.diagonal().iter().all(|v| *v >= 0.0);
+    sane.then(|| {
+        let largest = covariance.symmetric_eigenvalues().max();
+        largest.max(0.0).sqrt().max(f64::MIN_POSITIVE)
+    })
 }
 
 /// HEARTBEAT of an onboard odometer (MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID).
@@ -696,6 +703,8 @@ mod tests {
     fn quality_follows_integrity_and_staleness() {
         let policy = QualityPolicy::default();
         let mut e = estimate();
+        // At rest, so that the attitude's sigmas add nothing to the body velocity's.
+        e.velocity = Vector3::zeros();
         assert_eq!(policy.quality(&e), 100, "sigma_v 0.05 earns the full score");
         e.velocity_covariance = Matrix3::identity() * 0.01; // sigma 0.1 m/s
         assert_eq!(policy.quality(&e), 50);
@@ -732,6 +741,32 @@ mod tests {
         e.velocity_covariance = Matrix3::identity() * 1e-4;
         e.converged = false;
         assert_eq!(policy.quality(&e), 0, "not converged since the start");
+    }
+
+    #[test]
+    fn a_direction_unobserved_between_the_axes_is_not_to_be_used() {
+        let policy = QualityPolicy::default();
+        let mut e = estimate();
+        e.velocity = Vector3::zeros();
+        // 0.55 m/s along north-east, 1 cm/s across and down: 0.39 m/s on each axis.
+        let along = Vector3::new(1.0, 1.0, 0.0).normalize();
+        e.velocity_covariance =
+            along * along.transpose() * (0.55 * 0.55 - 1e-4) + Matrix3::identity() * 1e-4;
+        assert_eq!(policy.quality(&e), 0, "{}", policy.quality(&e));
+        // The same sigma along north alone has always been unusable.
+        e.velocity_covariance = Matrix3::from_diagonal(&Vector3::new(0.3025, 1e-4, 1e-4));
+        assert_eq!(policy.quality(&e), 0);
+    }
+
+    #[test]
+    fn a_heading_in_doubt_at_speed_lowers_the_quality_as_the_sent_covariance_does() {
+        let policy = QualityPolicy::default();
+        let mut e = estimate();
+        e.velocity = Vector3::new(2.0, 0.0, 0.0);
+        e.velocity_covariance = Matrix3::identity() * 1e-4;
+        e.attitude_covariance = Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 0.01));
+        // 0.1 rad of heading at 2 m/s: 0.2 m/s sideways in the body frame.
+        assert_eq!(policy.quality(&e), 24);
     }
 
     #[test]
