@@ -237,16 +237,19 @@ mod tests {
         ];
         for estimate in &mut estimates {
             estimate.integrity = Some(crate::estimate::IntegrityStatus::Ok);
-            estimate.velocity_covariance = Matrix3::identity() * 0.25;
+            estimate.velocity_covariance = Matrix3::identity() * 0.16;
+            // The attitude exact, so that the body velocity's sigma is the velocity's own
+            // (a radian of doubt at 4 m/s would make every estimate unusable).
+            estimate.attitude_covariance = Matrix3::zeros();
         }
         estimates[0].converged = false;
         estimates[2].reset_counter = 1;
         let view = autopilot_view(&estimates, &truth, &QualityPolicy::default()).unwrap();
         assert_eq!((view.estimates, view.valid, view.resets), (3, 2, 1));
         assert_eq!(view.first_valid_after_s, Some(1.5));
-        // Errors 0.1 and 3 m/s against a sigma of 0.5: one inside, NEES (0.04 + 36) / 2.
+        // Errors 0.1 and 3 m/s against a sigma of 0.4: one inside, NEES (0.0625 + 56.25) / 2.
         assert_eq!(view.inside_3_sigma[0], 0.5);
-        assert!((view.mean_nees[0] - 18.02).abs() < 1e-9);
+        assert!((view.mean_nees[0] - 28.15625).abs() < 1e-9);
         assert!((view.worst_valid_error_mps - 3.0).abs() < 1e-9);
     }
 
