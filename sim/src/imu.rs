@@ -6,6 +6,7 @@ use super::trajectory::{euler_to_quaternion, Trajectory};
 use super::GRAVITY;
 use ladar_sensors::ImuSample;
 use nalgebra::{UnitQuaternion, Vector3};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
@@ -93,7 +94,38 @@ impl Default for ImuConfig {
     }
 }
 
+/// One-sigma spread of the errors an IMU of a type may switch on with, per axis: what a
+/// Monte Carlo study draws so that each run flies a different unit, as a filter's priors claim.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuSpread {
+    /// Gyro turn-on bias, rad/s.
+    pub gyro_bias: f64,
+    /// Accelerometer turn-on bias, m/s^2.
+    pub accel_bias: f64,
+    /// Gyro scale-factor error (0.001 = 1000 ppm).
+    pub gyro_scale_factor: f64,
+    /// Accelerometer scale-factor error.
+    pub accel_scale_factor: f64,
+}
+
 impl ImuConfig {
+    /// The same IMU with its turn-on biases and scale factors drawn from `spread` (zero-mean
+    /// normal, independent per axis), seeded by `seed`.
+    pub fn with_drawn_errors(mut self, spread: &ImuSpread, seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut draw = |sigma: f64| -> [f64; 3] {
+            std::array::from_fn(|_| {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                sigma * z
+            })
+        };
+        self.gyro.turn_on_bias = draw(spread.gyro_bias);
+        self.accel.turn_on_bias = draw(spread.accel_bias);
+        self.gyro.scale_factor = draw(spread.gyro_scale_factor);
+        self.accel.scale_factor = draw(spread.accel_scale_factor);
+        self
+    }
+
     pub fn period(&self) -> f64 {
         1.0 / self.rate_hz
     }

@@ -27,7 +27,7 @@ mod scene;
 mod trajectory;
 
 pub use builtin::{wall_facing_origin, PaperBias, PAPER_SCANNER};
-pub use imu::{ImuConfig, ImuOutput, TriadErrors};
+pub use imu::{ImuConfig, ImuOutput, ImuSpread, TriadErrors};
 pub use scanner::{ScannerConfig, ScannerModel, SimScanner};
 pub use scenario::{Scenario, ScenarioError, BUILTIN_NAMES};
 pub use scene::{Motion, Patch, PlacedPatch, Profile, Scene, TruePlane};

@@ -351,6 +351,37 @@ fn turn_on_bias_and_scale_factor_shift_the_still_output() {
 }
 
 #[test]
+fn drawn_imu_errors_follow_their_spread_and_their_seed() {
+    let spread = ImuSpread {
+        gyro_bias: 0.005,
+        accel_bias: 0.05,
+        gyro_scale_factor: 0.002,
+        accel_scale_factor: 0.003,
+    };
+    let units: Vec<ImuConfig> = (0..200)
+        .map(|seed| ImuConfig::default().with_drawn_errors(&spread, seed))
+        .collect();
+    assert_eq!(units[7], ImuConfig::default().with_drawn_errors(&spread, 7));
+    assert_ne!(units[7].gyro.turn_on_bias, units[8].gyro.turn_on_bias);
+    let spread_of = |values: Vec<f64>, sigma: f64| {
+        let (mean, sd) = std_dev(&values);
+        // 600 draws: the sample sigma within 10 % (3.5 of its sigmas), the mean within 4 of its.
+        assert!((sd / sigma - 1.0).abs() < 0.1, "{sd} against {sigma}");
+        assert!(mean.abs() < 4.0 * sigma / 600f64.sqrt(), "{mean}");
+    };
+    let all = |f: fn(&ImuConfig) -> [f64; 3]| units.iter().flat_map(f).collect::<Vec<f64>>();
+    spread_of(all(|u| u.gyro.turn_on_bias), spread.gyro_bias);
+    spread_of(all(|u| u.accel.turn_on_bias), spread.accel_bias);
+    spread_of(all(|u| u.gyro.scale_factor), spread.gyro_scale_factor);
+    spread_of(all(|u| u.accel.scale_factor), spread.accel_scale_factor);
+    // Noise and drift stay the unit type's.
+    assert_eq!(
+        units[0].gyro.noise_density,
+        TriadErrors::mti_gyro().noise_density
+    );
+}
+
+#[test]
 fn bias_random_walk_grows_with_the_square_root_of_time() {
     let walk = TriadErrors {
         bias_random_walk: 1e-3,
