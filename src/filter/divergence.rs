@@ -7,8 +7,8 @@
 use std::collections::VecDeque;
 use std::fmt;
 
-use super::chi_square_quantile;
 use super::config::{FilterConfig, PAPER_EPOCH_S};
+use super::consistency::chi_square_cdf;
 
 /// Probability of the windowed-NIS test: a consistent filter trips it once in a million
 /// windows, so a trip is a lost filter, not bad luck.
@@ -123,7 +123,9 @@ impl DivergenceGuard {
             .recent
             .iter()
             .fold((0.0, 0), |(n, d), &(_, nis, dof)| (n + nis, d + dof));
-        (nis > chi_square_quantile(WINDOW_PROBABILITY, dof))
+        // The distribution at the NIS rather than the quantile at the probability: one series
+        // instead of a bisection of them, which the map's many rows made a tenth of an epoch.
+        (chi_square_cdf(nis, dof) > WINDOW_PROBABILITY)
             .then_some(Divergence::Innovations { nis, dof })
     }
 
