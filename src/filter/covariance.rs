@@ -76,6 +76,23 @@ impl ErrorDynamics {
         ])
     }
 
+    /// `phi <- F phi` for the core rows of a transition product (`map_states::MapStates`):
+    /// the columns of `phi` are error-state vectors, and `F = I + dt A` changes only their
+    /// position, velocity and attitude entries.
+    pub(crate) fn advance_transition(
+        &self,
+        phi: &mut SMatrix<f64, ERROR_STATES, ERROR_STATES>,
+        dt: f64,
+    ) {
+        let step = self.scaled(dt);
+        for j in 0..ERROR_STATES {
+            let change = step.apply(|at| phi.fixed_view::<3, 1>(at, j).into_owned(), dt);
+            for i in 0..9 {
+                phi[(i, j)] += change[i];
+            }
+        }
+    }
+
     /// `P <- F P F^T + Q dt` in place. With `with_clone` false the clone rows and columns
     /// (stale until the next clone overwrites them) are skipped. Returns whether every entry
     /// it changed is finite, so the caller need not scan the matrix again per IMU sample.
@@ -224,5 +241,33 @@ mod tests {
         // The clone and carried-noise block itself is untouched by propagation.
         let clone = p.fixed_view::<12, 12>(ERROR_STATES, ERROR_STATES);
         assert_eq!(clone, p0.fixed_view::<12, 12>(ERROR_STATES, ERROR_STATES));
+    }
+
+    #[test]
+    fn a_gathered_transition_moves_static_columns_as_propagation_does() {
+        // The clone's columns are states the IMU does not drive, as a surface's are: two
+        // steps of propagation must move them as the product of the two transitions does.
+        let q = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7);
+        let steps = [0.3, -0.4].map(|turn| Corrected {
+            dt: 0.005,
+            dtheta_imu: Vector3::new(0.01, turn * 0.02, 0.005),
+            dv_imu: Vector3::new(0.05, 0.01, -0.049 + turn * 0.01),
+            dtheta: Vector3::zeros(),
+            dv: Vector3::zeros(),
+        });
+        let root = Covariance::from_fn(|i, j| ((i * 5 + j * 3) % 13) as f64 * 0.1);
+        let p0 = root * root.transpose() + Covariance::identity();
+        let noise = ProcessNoise::new(&FilterConfig::default());
+        let mut p = p0;
+        let mut phi = SMatrix::<f64, ERROR_STATES, ERROR_STATES>::identity();
+        for inc in &steps {
+            let d = ErrorDynamics::new(&q, &q, inc, &Vector3::zeros(), &Vector3::zeros());
+            d.propagate(&mut p, &noise, inc.dt, true);
+            d.advance_transition(&mut phi, inc.dt);
+        }
+        let columns = p0.fixed_view::<ERROR_STATES, 12>(0, ERROR_STATES);
+        let expected = phi * columns;
+        let moved = p.fixed_view::<ERROR_STATES, 12>(0, ERROR_STATES);
+        assert!((moved - expected).norm() < 1e-12 * expected.norm());
     }
 }

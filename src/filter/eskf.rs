@@ -12,24 +12,27 @@ use super::config::FilterConfig;
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
+use super::map_states::{JointRows, MapStates};
 use super::relative_pose::CarriedNoise;
 use super::state::{
     Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, CARRIED, CLONE_ATT,
     CLONE_POS, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, POS, VEL,
 };
 use super::strapdown::{mechanise, ImuIncrement};
-use super::update::{self, GateThresholds, Stacked};
+use super::update::{self, GateThresholds, Gated, Stacked};
 use crate::config::ConfigErrors;
 use crate::estimate::Estimate;
 use crate::sensors::ImuSample;
 
 mod level_update;
+mod map_update;
 mod pose_prior;
 mod relative_pose_update;
 mod speed_prior;
 mod zero_motion_update;
 
 pub use level_update::LevelDirection;
+pub use map_update::{LineOnSurface, LineStack, MapLine, SurfaceAllowance, SurfacePlacement};
 
 /// Most covariance steps taken to bridge one IMU gap.
 const MAX_GAP_STEPS: f64 = 1000.0;
@@ -120,6 +123,7 @@ pub enum UpdateKind {
     ZeroMotion,
     SpeedPrior,
     LevelDirections,
+    MapLines,
 }
 
 /// A building's floor is level by assumption, and a plane that only looks like one (a wall line
@@ -167,6 +171,8 @@ pub enum UpdateError {
     OutsideHistory { t_ref: f64 },
     #[error("measurement covariance is not positive definite: check the odometer's covariance")]
     BadCovariance,
+    #[error("surface {id} is not in the map: it was dropped or the filter restarted")]
+    NoSurface { id: u64 },
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -232,6 +238,10 @@ pub struct Eskf {
     /// Every change of the velocity that was not the IMU's, summed (navigation axes, m/s):
     /// updates and restarts. Scans deskewed before and after such a change disagree by it.
     velocity_corrections: Vector3<f64>,
+    /// The plane map's surfaces, carried with the state (`odometry.method = "map"`).
+    map: MapStates,
+    /// The gate's chi-square thresholds by rows of lines on the map, filled as counts occur.
+    map_gates: Vec<f64>,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -317,6 +327,8 @@ impl Eskf {
             last_speed_prior: None,
             recent_force: RecentForce::default(),
             velocity_corrections: Vector3::zeros(),
+            map: MapStates::default(),
+            map_gates: Vec::new(),
             config,
         })
     }
@@ -457,6 +469,7 @@ impl Eskf {
             corrected.dt,
             self.clone.is_some(),
         );
+        self.map.advance(&dynamics, corrected.dt);
         if !next.is_finite() || !covariance_finite {
             self.reset(ResetReason::NonFinitePropagation);
             return Some(ResetReason::NonFinitePropagation);
@@ -504,6 +517,7 @@ impl Eskf {
                 step,
                 self.clone.is_some(),
             );
+            self.map.advance(&dynamics, step);
         }
         self.state.p += self.state.v * seconds;
         self.zero_motion = None;
@@ -607,13 +621,59 @@ impl Eskf {
         if !rows.is_finite() {
             return Err(UpdateError::NonFinite);
         }
-        let mut covariance = self.covariance;
         let gate = match kind {
             UpdateKind::LevelDirections => &self.assumption_gate,
             _ => &self.gate,
         };
+        if !self.map.is_empty() {
+            // The map is built only by `odometry.method = "map"`, which fuses no relative
+            // poses, so nothing here carries noise out to a next measurement.
+            let threshold = gate.threshold(rows.dof());
+            let joint = rows.joint(self.map.states());
+            return self.fuse_joint(&joint, rows.dof(), threshold, kind, t);
+        }
+        let mut covariance = self.covariance;
         let gated =
             update::apply(&mut covariance, rows, gate).map_err(|_| UpdateError::BadCovariance)?;
+        self.commit(gated, covariance, rows.carried_out_covariance(), kind, t)
+    }
+
+    /// Fuses rows over the state and the mapped surfaces together.
+    fn fuse_joint(
+        &mut self,
+        rows: &JointRows,
+        dof: usize,
+        threshold: f64,
+        kind: UpdateKind,
+        t: f64,
+    ) -> Result<UpdateReport, UpdateError> {
+        if !rows.is_finite() {
+            return Err(UpdateError::NonFinite);
+        }
+        let mut covariance = self.covariance;
+        let joint = self
+            .map
+            .update(&mut covariance, rows, threshold)
+            .map_err(|_| UpdateError::BadCovariance)?;
+        let gated = Gated {
+            nis: joint.nis,
+            dof,
+            threshold,
+            correction: joint.correction,
+            carried: None,
+        };
+        self.commit(gated, covariance, None, kind, t)
+    }
+
+    /// Applies a gated update's correction and covariance (or counts its refusal).
+    fn commit(
+        &mut self,
+        gated: Gated,
+        covariance: crate::filter::state::Covariance,
+        carried_out: Option<nalgebra::SMatrix<f64, 6, 6>>,
+        kind: UpdateKind,
+        t: f64,
+    ) -> Result<UpdateReport, UpdateError> {
         let report = UpdateReport {
             kind,
             t,
@@ -631,7 +691,7 @@ impl Eskf {
         let block =
             |at: usize| Vector3::new(correction[at], correction[at + 1], correction[at + 2]);
         let next = self.state.inject(&correction);
-        if !next.is_finite() || !covariance.iter().all(|x| x.is_finite()) {
+        if !next.is_finite() || !covariance.iter().all(|x| x.is_finite()) || !self.map.is_finite() {
             self.reset(ResetReason::NonFiniteUpdate);
             return Ok(UpdateReport {
                 accepted: false,
@@ -655,7 +715,7 @@ impl Eskf {
             clone.p += block(CLONE_POS);
             clone.q = UnitQuaternion::from_scaled_axis(block(CLONE_ATT)) * clone.q;
         }
-        match (gated.carried, rows.carried_out_covariance()) {
+        match (gated.carried, carried_out) {
             (Some(mean), Some(prior)) => {
                 let part = |k: usize| Vector3::new(mean[k], mean[k + 1], mean[k + 2]);
                 self.carried = Some(CarriedNoise {
@@ -693,6 +753,7 @@ impl Eskf {
         );
         self.clone = None;
         self.carried = None;
+        self.map.clear();
         self.count_reset(reason);
     }
 
@@ -738,6 +799,7 @@ impl Eskf {
         self.recent_force.clear();
         self.clone = None;
         self.carried = None;
+        self.map.clear();
         self.zero_motion = None;
         self.guard.clear();
         self.converged = false;
@@ -857,6 +919,7 @@ impl Eskf {
     pub(crate) fn phase(&self) -> FilterPhase {
         self.phase
     }
+
     pub fn state(&self) -> &NominalState {
         &self.state
     }

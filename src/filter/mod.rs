@@ -20,6 +20,7 @@ pub(crate) mod covariance;
 pub(crate) mod divergence;
 pub(crate) mod eskf;
 pub(crate) mod history;
+pub(crate) mod map_states;
 pub(crate) mod relative_pose;
 pub mod state;
 pub(crate) mod strapdown;
@@ -30,7 +31,9 @@ pub(crate) mod update;
 pub use config::{FilterConfig, RelativePoseUpdate};
 pub use consistency::mean_nees_interval;
 pub(crate) use consistency::{chi_square_quantile, surprises};
-pub use eskf::{Eskf, LevelDirection};
+pub use eskf::{
+    Eskf, LevelDirection, LineOnSurface, LineStack, MapLine, SurfaceAllowance, SurfacePlacement,
+};
 pub(crate) use eskf::{FilterPhase, ImuOutcome, ResetReason, UpdateReport};
 pub(crate) use history::Pose;
 pub use relative_pose::{

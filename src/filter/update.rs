@@ -1,10 +1,11 @@
 //! The Kalman measurement update shared by every measurement (relative pose, zero velocity),
 //! with projection onto the observable directions and the chi-square innovation gate.
 
-use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
 
 use super::consistency::chi_square_quantile;
 use super::covariance::symmetrise;
+use super::map_states::JointRows;
 use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CARRIED, CLONE_ATT};
 
 /// Up to six measurement rows: two three-row blocks (e.g. rotation and displacement).
@@ -168,6 +169,21 @@ impl Stacked {
         self.carried_out.map(|(_, own)| own)
     }
 
+    /// Observable rows.
+    pub(crate) fn dof(&self) -> usize {
+        self.dof
+    }
+
+    /// The same rows over the state and `surface_states` map states they do not measure.
+    pub(crate) fn joint(&self, surface_states: usize) -> JointRows {
+        JointRows {
+            innovation: DVector::from_column_slice(self.innovation.as_slice()),
+            core: DMatrix::from_column_slice(ROWS, AUGMENTED, self.jacobian.as_slice()),
+            surfaces: DMatrix::zeros(ROWS, surface_states),
+            noise: DMatrix::from_column_slice(ROWS, ROWS, self.noise.as_slice()),
+        }
+    }
+
     pub(crate) fn is_finite(&self) -> bool {
         self.innovation.iter().all(|x| x.is_finite())
             && self.jacobian.iter().all(|x| x.is_finite())
@@ -240,6 +256,10 @@ impl GateThresholds {
             chi_square_quantile(gate_probability, dof)
         }))
     }
+
+    pub(crate) fn threshold(&self, dof: usize) -> f64 {
+        self.0[dof.min(ROWS)]
+    }
 }
 
 /// Gates on the NIS, then applies `K = P H^T S^-1`, `P <- P - K S K^T` and the ESKF reset of
@@ -308,7 +328,7 @@ fn carry_forward(
     s_inv_cross.transpose() * y
 }
 
-fn reset_attitude_error(p: &mut Covariance, at: usize, dtheta: &Vector3<f64>) {
+pub(crate) fn reset_attitude_error(p: &mut Covariance, at: usize, dtheta: &Vector3<f64>) {
     let g = Matrix3::identity() + (dtheta * 0.5).cross_matrix();
     let rows = g * p.fixed_rows::<3>(at);
     p.fixed_rows_mut::<3>(at).copy_from(&rows);

@@ -16,7 +16,7 @@ use std::collections::VecDeque;
 use crate::odometry::EpochPlanes;
 
 /// The planes of the recent epochs, oldest first, as far back as the confirmation needs.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct RecentEpochs {
     epochs: VecDeque<EpochPlanes>,
     /// Storage of pruned epochs, reused so that remembering allocates nothing once grown.

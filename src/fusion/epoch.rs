@@ -104,7 +104,7 @@ impl Fusion {
     /// (no motion assumed before the filter is aligned), each confirmed by the keyframe
     /// (`confirmation`) when the test applies. Returns false when it applies but there is no
     /// keyframe the filter can bridge yet: then no plane is confirmed.
-    fn extract(&mut self, scans: &[Scan; 2], t_ref: f64, out: &mut EpochPlanes) -> bool {
+    pub(super) fn extract(&mut self, scans: &[Scan; 2], t_ref: f64, out: &mut EpochPlanes) -> bool {
         let motion = MotionModel::new(&self.filter);
         let reference = motion.as_ref().map(|m| m.pose(t_ref));
         let pose_at = |t: f64| -> Isometry3<f64> {
@@ -501,7 +501,7 @@ fn symmetric(m: Matrix3<f64>) -> Matrix3<f64> {
     (m + m.transpose()) * 0.5
 }
 
-fn planes_record(planes: &EpochPlanes) -> EpochRecord {
+pub(super) fn planes_record(planes: &EpochPlanes) -> EpochRecord {
     let on_scanner = |k: usize| {
         planes
             .planes
@@ -533,6 +533,7 @@ fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         displacement: None,
         update: None,
         level_surfaces: Vec::new(),
+        map: None,
     }
 }
 

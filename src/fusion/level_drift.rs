@@ -72,7 +72,7 @@ impl Track {
 }
 
 /// The level planes' tracks, by plane id of the last solved epoch.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct LevelDrift {
     tracks: Vec<Option<Track>>,
 }

@@ -15,6 +15,8 @@ mod confirmation;
 mod deskew_basis;
 mod epoch;
 mod level_drift;
+mod map_epoch;
+mod plane_map;
 pub mod record;
 mod shared_noise;
 mod witnesses;
@@ -26,7 +28,7 @@ pub(crate) use record::{EpochOutcome, EpochRecord};
 use crate::estimate::{Estimate, IntegrityStatus};
 use crate::filter::{Eskf, FilterPhase, ImuOutcome};
 use crate::integrity::IntegrityMonitor;
-use crate::odometry::{EpochPlanes, Odometer};
+use crate::odometry::{EpochPlanes, Odometer, OdometryMethod};
 use crate::sensors::{ImuSample, Scan, ScannerSetup};
 
 /// A source whose staleness the daemon's watchdog reports.
@@ -59,6 +61,7 @@ struct Reference {
     noise_maps: Vec<shared_noise::PlaneNoiseMap>,
 }
 
+#[derive(Clone)]
 pub struct Fusion {
     config: FusionConfig,
     filter: Eskf,
@@ -77,6 +80,10 @@ pub struct Fusion {
     reference: Option<Reference>,
     /// Storage for the current epoch's planes, swapped with the reference's.
     current: EpochPlanes,
+    /// The plane map's bookkeeping (`odometry.method = "map"`).
+    plane_map: plane_map::PlaneMap,
+    /// Reference time of the last epoch on the plane map.
+    last_map_epoch: Option<f64>,
     /// Epochs back to the plane confirmation's baseline.
     recent: confirmation::RecentEpochs,
     /// Level planes followed from epoch to epoch, to leave out those whose height wanders.
@@ -96,6 +103,8 @@ impl Fusion {
     pub fn new(settings: FusionSettings, scanners: [ScannerSetup; 2]) -> Result<Self, FusionError> {
         settings.validate()?;
         Ok(Self {
+            plane_map: plane_map::PlaneMap::new(settings.odometry.map.clone()),
+            last_map_epoch: None,
             odometer: Odometer::new(scanners, settings.odometry)?,
             monitor: IntegrityMonitor::new(settings.integrity)?,
             filter: Eskf::new(settings.filter)?,
@@ -173,7 +182,18 @@ impl Fusion {
             return None;
         }
         self.counters.epochs += 1;
-        Some(self.run_epoch(&scans, t_ref))
+        Some(match self.odometer.config().method {
+            OdometryMethod::Pairs => self.run_epoch(&scans, t_ref),
+            OdometryMethod::Map => {
+                self.last_map_epoch = Some(t_ref);
+                self.run_map_epoch(&scans, t_ref)
+            }
+        })
+    }
+
+    /// How many surfaces the plane map holds (`odometry.method = "map"`).
+    pub fn mapped_surfaces(&self) -> usize {
+        self.filter.surfaces().len()
     }
 
     /// The watchdog's verdict on a source; a stale source marks the estimates degraded.
@@ -251,13 +271,14 @@ impl Fusion {
     fn epoch_due(&mut self, t_ref: f64) -> bool {
         let pair_interval = self.last_pair.map_or(0.0, |last| t_ref - last);
         self.last_pair = Some(t_ref);
-        match &self.reference {
-            None => true,
-            Some(reference) => {
-                t_ref - reference.planes.t_ref
-                    >= self.config.epoch_interval_s() - 0.5 * pair_interval
-            }
-        }
+        let previous = self
+            .reference
+            .as_ref()
+            .map(|r| r.planes.t_ref)
+            .or(self.last_map_epoch);
+        previous.is_none_or(|previous| {
+            t_ref - previous >= self.config.epoch_interval_s() - 0.5 * pair_interval
+        })
     }
 }
 

@@ -147,4 +147,7 @@ pub struct EpochRecord {
     /// The filter's verdict on each floor or ceiling fused as the vertical, when it had lost
     /// it (`fusion/building_vertical.rs`).
     pub level_surfaces: Vec<UpdateSummary>,
+    /// What the plane map did (`odometry.method = "map"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub map: Option<super::map_epoch::MapEpoch>,
 }

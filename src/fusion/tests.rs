@@ -1,4 +1,5 @@
 use super::*;
+use crate::odometry::OdometryMethod;
 use crate::sensors::{Mount, ScannerGeometry};
 use ladar_sim::{Scenario, SimEvent, Simulator};
 use nalgebra::Vector3;
@@ -67,6 +68,27 @@ fn settings_parse_from_toml_and_refuse_unknown_keys() {
     assert_eq!(settings.fusion.epoch_rate_hz, 10.0);
     assert!(!settings.fusion.exclusion);
     assert!(toml::from_str::<FusionSettings>("[fusion]\nepoch_rate = 1.0\n").is_err());
+}
+
+#[test]
+fn the_plane_map_is_chosen_by_name_and_its_bad_keys_name_themselves() {
+    let text = "[odometry]\nmethod = \"map\"\n[odometry.map]\nmax_surfaces = 40\n";
+    let settings: FusionSettings = toml::from_str(text).unwrap();
+    assert_eq!(settings.odometry.method, OdometryMethod::Map);
+    assert_eq!(settings.odometry.map.max_surfaces, 40);
+    assert!(settings.validate().is_ok());
+    let unknown = "[odometry.map]\nmax_planes = 40\n";
+    let error = toml::from_str::<FusionSettings>(unknown)
+        .unwrap_err()
+        .to_string();
+    assert!(error.contains("max_planes"), "{error}");
+    assert!(toml::from_str::<FusionSettings>("[odometry]\nmethod = \"icp\"\n").is_err());
+    let mut settings = FusionSettings::default();
+    settings.odometry.map.max_surfaces = 0;
+    settings.odometry.map.roughness_m = f64::NAN;
+    let error = settings.validate().unwrap_err().to_string();
+    assert!(error.contains("odometry.map.max_surfaces"), "{error}");
+    assert!(error.contains("odometry.map.roughness_m"), "{error}");
 }
 
 #[test]

@@ -248,7 +248,7 @@ impl PriorWitness {
 /// lone plane contradicted the prediction. A contradiction means the plane moved or the filter
 /// is off, and nothing tells which: in `random-room-35` the far wall, the only plane along the
 /// room, was right and the filter's velocity along it was 0.3 m/s off and growing.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(super) struct Provisional {
     rotation: Vec<Vector3<f64>>,
     displacement: Vec<Vector3<f64>>,

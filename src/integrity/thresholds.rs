@@ -33,8 +33,9 @@ pub struct Thresholds {
     global: Vec<f64>,
     /// Threshold on `|p|` when the parity space has one dimension.
     sole: f64,
-    /// Per-plane thresholds for one and two rows, by number of tests.
-    per_plane: [Vec<f64>; 2],
+    /// Per-plane thresholds for one to four rows (a plane's, or a mapped surface's two lines),
+    /// by number of tests.
+    per_plane: [Vec<f64>; 4],
 }
 
 impl Thresholds {
@@ -42,7 +43,7 @@ impl Thresholds {
         let global = (1..=CACHED)
             .map(|dof| chi_square_upper_quantile(dof, false_alarm / 2.0))
             .collect();
-        let per_plane = [1, 2].map(|dof| {
+        let per_plane = [1, 2, 3, 4].map(|dof| {
             (1..=CACHED)
                 .map(|tests| plane_threshold(false_alarm, dof, tests))
                 .collect()

@@ -26,6 +26,9 @@ pub struct Beam {
     pub azimuth: f64,
     /// Measured range, metres.
     pub range: f64,
+    /// When it was measured, host seconds: a velocity error moves the deskewed point by itself
+    /// times this less the reference time.
+    pub time: f64,
 }
 
 /// Readings dropped from one scan, by reason.
@@ -80,7 +83,7 @@ struct BeamGeometry {
 }
 
 /// Deskews scans, keeping the per-step beam directions between calls.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct Deskewer {
     layout: Option<(ScannerGeometry, Mount, u32, u32)>,
     table: Vec<BeamGeometry>,
@@ -116,6 +119,7 @@ impl Deskewer {
                 direction: beam.direction,
                 azimuth: beam.azimuth,
                 range,
+                time: scan.time_of(index, geometry),
             });
         }
         dropped

@@ -46,7 +46,7 @@ impl Segment {
 }
 
 /// Reusable buffers: extraction allocates nothing once they have grown to the scan size.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub struct LineExtractor {
     pending: Vec<(usize, usize)>,
     pieces: Vec<(usize, usize)>,

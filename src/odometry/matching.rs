@@ -21,7 +21,7 @@ pub struct PlaneMatch {
 }
 
 /// Reusable buffers for the assignment.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct Matcher {
     candidates: Vec<PlaneMatch>,
     /// Pairs that fit the distance and face the same way but that the normal gate refused.

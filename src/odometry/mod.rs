@@ -14,6 +14,8 @@ pub mod deskew;
 pub(crate) mod displacement;
 pub(crate) mod level_lines;
 pub mod lines;
+pub mod map_config;
+pub(crate) mod map_lines;
 pub(crate) mod matching;
 pub mod planes;
 pub(crate) mod rotation;
@@ -29,6 +31,8 @@ use crate::sensors::{Scan, ScannerSetup};
 use deskew::{Beam, Deskewer, DroppedReadings, PoseAt};
 use level_lines::{level_planes, LevelLineParameters, Overshoot};
 use lines::{LineExtractor, LineParameters, Segment};
+pub use map_config::{MapConfig, OdometryMethod};
+use map_lines::ScanOfLines;
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 use planes::{Building, Plane, PlaneExtractor, PlaneParameters, ScanLines, Surfaces};
@@ -40,6 +44,11 @@ use wall_lines::{wall_planes, WallLineParameters};
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct OdometryConfig {
+    /// How an epoch measures the motion: `"pairs"`, the paper's planes of two lines seen at
+    /// once matched scan to scan, or `"map"`, every line on a local map of surfaces
+    /// (`[odometry.map]`; docs/design.md, 4.11).
+    pub method: OdometryMethod,
+    pub map: MapConfig,
     /// Ranging noise (1 sigma, metres) used for scanners whose setup gives none. 0.01 m: the
     /// paper's simulation and the UTM-30LX's +-30 mm read as 3 sigma.
     pub range_sigma_m: f64,
@@ -112,6 +121,8 @@ pub struct OdometryConfig {
 impl Default for OdometryConfig {
     fn default() -> Self {
         Self {
+            method: OdometryMethod::Pairs,
+            map: MapConfig::default(),
             range_sigma_m: 0.01,
             breakpoint_lambda_deg: 10.0,
             breakpoint_noise_sigmas: 3.0,
@@ -145,6 +156,7 @@ impl OdometryConfig {
 
     /// Adds every problem of the table to `errors`.
     pub(crate) fn check(&self, errors: &mut ConfigErrors) {
+        self.map.check(errors);
         let mut odometry = errors.table("odometry");
         let positive = "set it to a finite number above 0";
         let checks = [
@@ -484,7 +496,7 @@ pub struct Vertical {
 }
 
 /// The geometry core with its reusable buffers.
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 pub struct Odometer {
     config: OdometryConfig,
     scanners: [ScannerSetup; 2],
@@ -536,6 +548,16 @@ impl Odometer {
     /// Lines of scanner `k` from the latest extraction, indexing `beams(k)`.
     pub fn lines(&self, k: usize) -> &[Segment] {
         &self.segments[k]
+    }
+
+    /// Scanner `k`'s lines from the latest extraction, as the plane map measures with them.
+    pub(crate) fn scan_of_lines(&self, k: usize) -> ScanOfLines<'_> {
+        ScanOfLines {
+            segments: &self.segments[k],
+            beams: &self.beams[k],
+            range_sigma_m: self.range_sigma(k),
+            scan_normal: self.scanners[k].mount.rotation * Vector3::z(),
+        }
     }
 
     fn range_sigma(&self, scanner: usize) -> f64 {

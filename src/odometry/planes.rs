@@ -264,7 +264,7 @@ impl<'a> ScanLines<'a> {
 }
 
 /// Reusable candidate buffers.
-#[derive(Debug, Default)]
+#[derive(Debug, Clone, Default)]
 pub(crate) struct PlaneExtractor {
     candidates: Vec<Plane>,
     used: [Vec<bool>; 2],

@@ -30,5 +30,6 @@ pub(crate) fn beam(body: Vector3<f64>) -> Beam {
         direction: body.normalize(),
         azimuth: 0.0,
         range: body.norm(),
+        time: 0.0,
     }
 }

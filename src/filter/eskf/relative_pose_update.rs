@@ -75,6 +75,20 @@ impl Eskf {
             }
         };
         let report = self.fuse(&rows, kind, now)?;
+        self.after_odometry_update(&report, [measurement.t_ref, measurement.t], now);
+        Ok(report)
+    }
+
+    /// What an odometry update (a relative pose, or the map's lines) tells the filter about
+    /// itself: the last fused time, a dispute, convergence since the last (re)start, and the
+    /// divergence guard's verdict. `span` is when the update's epochs begin and end (a relative
+    /// pose's two epochs; the map's one, twice).
+    pub(super) fn after_odometry_update(
+        &mut self,
+        report: &UpdateReport,
+        span: [f64; 2],
+        now: f64,
+    ) {
         if report.accepted && report.dof > 0 {
             self.last_fused = Some(now);
             self.degraded = None;
@@ -82,12 +96,12 @@ impl Eskf {
         if report.dof > 0 {
             self.disputed = !report.accepted;
         }
-        if !self.converged && surprised(&report) {
+        if !self.converged && surprised(report) {
             self.fused_since_start = 0;
             self.first_fused_ref = None;
         } else if report.accepted && report.dof > 0 {
             self.fused_since_start += 1;
-            let first = *self.first_fused_ref.get_or_insert(measurement.t_ref);
+            let first = *self.first_fused_ref.get_or_insert(span[0]);
             let epochs = self.config.converged_after_epochs;
             // Faster epochs must span as long (from the first one's reference to the last one's
             // end, the span of the epochs but the first), since what the first epochs leave
@@ -95,7 +109,7 @@ impl Eskf {
             // not with the count: at 10 Hz three epochs took 0.3 s, and in random room 131 the
             // start in motion counted as converged 1 s in with a gyro bias 7 mrad/s off.
             let span_s = f64::from(epochs.saturating_sub(1)) * PAPER_EPOCH_S;
-            self.converged |= self.fused_since_start >= epochs && measurement.t - first >= span_s;
+            self.converged |= self.fused_since_start >= epochs && span[1] - first >= span_s;
         }
         if let Some(divergence) =
             self.guard
@@ -103,7 +117,6 @@ impl Eskf {
         {
             self.reinitialise(ResetReason::Diverged(divergence));
         }
-        Ok(report)
     }
 }
 

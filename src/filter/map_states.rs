@@ -1,0 +1,442 @@
+//! The plane map's surfaces as states of the filter (docs/design.md, 4.11 "Plane map").
+//!
+//! A surface is a plane `n . x = d` in navigation axes (`x` NED), with three error states: two
+//! turns of its normal in a tangent basis that follows it, then its distance. Carried with the
+//! state, a surface's error keeps its correlation with the poses that measured it, so a line
+//! seen on it minutes later tells the filter exactly what the surface and the pose share, and
+//! nothing twice.
+//!
+//! The covariance is `[[P, X], [X^T, M]]`: `P` the filter's fixed 33x33 covariance, `X` its
+//! cross-covariance with the surfaces, `M` theirs. Surfaces do not move, so between updates
+//! only the rows of `X` that the IMU drives change, as `X <- F X`; the products of the
+//! transitions `F` are gathered in `transition` and applied to `X` only when it is read
+//! (`settle`), so that an IMU sample costs the same 21 columns however many surfaces there are.
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, SMatrix, Vector3};
+
+use super::covariance::{symmetrise, ErrorDynamics};
+use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT, ERROR_STATES};
+use super::update::{reset_attitude_error, NotPositiveDefinite};
+
+/// Error states of one surface: two tangent turns of its normal, then its distance.
+pub(crate) const SURFACE_STATES: usize = 3;
+
+/// One mapped surface's nominal parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    /// Stable name, never reused within a filter's life.
+    pub id: u64,
+    /// Unit normal, navigation axes.
+    pub normal: Vector3<f64>,
+    /// `normal . x = distance` for the surface's points `x` (NED), metres.
+    pub distance: f64,
+    /// Directions of the normal's two error states, square to it.
+    pub basis: Matrix3x2<f64>,
+}
+
+impl Surface {
+    /// Adds an error-state correction `[turn_1, turn_2, distance]`, carrying the basis along
+    /// (Gram-Schmidt against the new normal) so that the states keep their meaning.
+    pub(crate) fn inject(&mut self, correction: &Vector3<f64>) {
+        let turn = self.basis * correction.xy();
+        self.normal = (self.normal + turn).normalize();
+        self.distance += correction.z;
+        let first = self.basis.column(0).into_owned();
+        let first = (first - self.normal * self.normal.dot(&first)).normalize();
+        self.basis = Matrix3x2::from_columns(&[first, self.normal.cross(&first)]);
+    }
+}
+
+/// A surface about to enter the map. Its error is `on_state dx + own`: the part the pose's
+/// error makes (a surface placed from where the body is inherits that pose's error, so that
+/// placing it tells the state nothing) and a part of its own, independent of the state.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfacePrior {
+    pub normal: Vector3<f64>,
+    pub distance: f64,
+    /// Directions of the normal's two error states, square to `normal`.
+    pub basis: Matrix3x2<f64>,
+    /// How `[turn_1, turn_2, distance]` follows the state's error.
+    pub on_state: SMatrix<f64, SURFACE_STATES, AUGMENTED>,
+    /// Covariance of the part of `[turn_1, turn_2, distance]` of its own.
+    pub covariance: Matrix3<f64>,
+}
+
+/// Measurement rows over the state and the surfaces: `innovation = core dx + surfaces dm +
+/// noise`.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct JointRows {
+    pub innovation: DVector<f64>,
+    /// Rows x `AUGMENTED`.
+    pub core: DMatrix<f64>,
+    /// Rows x the surfaces' error states, in map order.
+    pub surfaces: DMatrix<f64>,
+    pub noise: DMatrix<f64>,
+}
+
+impl JointRows {
+    pub(crate) fn is_finite(&self) -> bool {
+        [&self.core, &self.surfaces, &self.noise]
+            .into_iter()
+            .flat_map(|m| m.iter())
+            .chain(self.innovation.iter())
+            .all(|x| x.is_finite())
+    }
+}
+
+/// The outcome of a joint update: the NIS and, when the gate passed, the state's correction
+/// (the surfaces are corrected in place).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct JointGated {
+    pub nis: f64,
+    pub correction: Option<ErrorState>,
+}
+
+/// The surfaces, their covariance and their cross-covariance with the filter's state.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct MapStates {
+    surfaces: Vec<Surface>,
+    cross: DMatrix<f64>,
+    own: DMatrix<f64>,
+    /// Product of the core transitions since `cross` was last brought up to date.
+    transition: SMatrix<f64, ERROR_STATES, ERROR_STATES>,
+    pending: bool,
+    next_id: u64,
+}
+
+impl Default for MapStates {
+    fn default() -> Self {
+        Self {
+            surfaces: Vec::new(),
+            cross: DMatrix::zeros(AUGMENTED, 0),
+            own: DMatrix::zeros(0, 0),
+            transition: SMatrix::identity(),
+            pending: false,
+            next_id: 0,
+        }
+    }
+}
+
+impl MapStates {
+    pub(crate) fn is_empty(&self) -> bool {
+        self.surfaces.is_empty()
+    }
+
+    pub(crate) fn surfaces(&self) -> &[Surface] {
+        &self.surfaces
+    }
+
+    pub(crate) fn index_of(&self, id: u64) -> Option<usize> {
+        self.surfaces.iter().position(|s| s.id == id)
+    }
+
+    /// The error states of all surfaces.
+    pub(crate) fn states(&self) -> usize {
+        SURFACE_STATES * self.surfaces.len()
+    }
+
+    /// One IMU interval of the state's transition, to be applied to `X` when it is next read.
+    pub(crate) fn advance(&mut self, dynamics: &ErrorDynamics, dt: f64) {
+        if self.surfaces.is_empty() {
+            return;
+        }
+        dynamics.advance_transition(&mut self.transition, dt);
+        self.pending = true;
+    }
+
+    /// Applies the gathered transitions to the cross-covariance.
+    pub(crate) fn settle(&mut self) {
+        if !self.pending {
+            return;
+        }
+        let core = self.cross.rows(0, ERROR_STATES).into_owned();
+        self.cross
+            .rows_mut(0, ERROR_STATES)
+            .copy_from(&(self.transition * core));
+        self.transition = SMatrix::identity();
+        self.pending = false;
+    }
+
+    /// The cross-covariance between the state's error states and surface `index`'s.
+    pub(crate) fn cross_block(&self, index: usize) -> SMatrix<f64, AUGMENTED, 3> {
+        debug_assert!(
+            !self.pending,
+            "settle() before reading the cross-covariance"
+        );
+        SMatrix::from_fn(|r, c| self.cross[(r, SURFACE_STATES * index + c)])
+    }
+
+    /// The covariance between surfaces `a` and `b`.
+    pub(crate) fn own_block(&self, a: usize, b: usize) -> Matrix3<f64> {
+        self.own
+            .fixed_view::<3, 3>(SURFACE_STATES * a, SURFACE_STATES * b)
+            .into_owned()
+    }
+
+    /// Adds a surface with its prior, correlated with the state (covariance `p`) and so with
+    /// the other surfaces through `prior.on_state`; returns its id.
+    pub(crate) fn add(&mut self, p: &Covariance, prior: &SurfacePrior) -> u64 {
+        self.settle();
+        let id = self.next_id;
+        self.next_id += 1;
+        let n = self.states();
+        let on_state =
+            DMatrix::from_column_slice(SURFACE_STATES, AUGMENTED, prior.on_state.as_slice());
+        let p = DMatrix::from_column_slice(AUGMENTED, AUGMENTED, p.as_slice());
+        let with_state = &p * on_state.transpose();
+        let with_surfaces = &on_state * &self.cross;
+        let own_new =
+            &on_state * &with_state + DMatrix::from_column_slice(3, 3, prior.covariance.as_slice());
+        let mut cross = self.cross.clone().insert_columns(n, SURFACE_STATES, 0.0);
+        cross.columns_mut(n, SURFACE_STATES).copy_from(&with_state);
+        self.cross = cross;
+        let mut own = self
+            .own
+            .clone()
+            .insert_columns(n, SURFACE_STATES, 0.0)
+            .insert_rows(n, SURFACE_STATES, 0.0);
+        own.view_mut((n, 0), (SURFACE_STATES, n))
+            .copy_from(&with_surfaces);
+        own.view_mut((0, n), (n, SURFACE_STATES))
+            .copy_from(&with_surfaces.transpose());
+        own.view_mut((n, n), (SURFACE_STATES, SURFACE_STATES))
+            .copy_from(&own_new);
+        self.own = own;
+        self.symmetrise_own();
+        self.surfaces.push(Surface {
+            id,
+            normal: prior.normal,
+            distance: prior.distance,
+            basis: prior.basis,
+        });
+        id
+    }
+
+    /// Drops surface `index` (marginalises it out, which a Gaussian allows as it is).
+    pub(crate) fn remove(&mut self, index: usize) {
+        self.settle();
+        let at = SURFACE_STATES * index;
+        self.cross = self.cross.clone().remove_columns(at, SURFACE_STATES);
+        self.own = self
+            .own
+            .clone()
+            .remove_columns(at, SURFACE_STATES)
+            .remove_rows(at, SURFACE_STATES);
+        self.surfaces.remove(index);
+    }
+
+    /// Forgets every surface (a restart: the state they were correlated with is gone).
+    pub(crate) fn clear(&mut self) {
+        let next_id = self.next_id;
+        *self = Self {
+            next_id,
+            ..Self::default()
+        };
+    }
+
+    /// The Kalman update of the state (`p`) and the surfaces together, gated on the NIS at
+    /// `threshold`. Leaves everything untouched when the gate refuses.
+    pub(crate) fn update(
+        &mut self,
+        p: &mut Covariance,
+        rows: &JointRows,
+        threshold: f64,
+    ) -> Result<JointGated, NotPositiveDefinite> {
+        self.settle();
+        // Rows touch few columns (a line: position, velocity, attitude and one surface), so
+        // `P H^T` is formed from those columns alone.
+        let core_columns = touched_columns(&rows.core);
+        let surface_columns = touched_columns(&rows.surfaces);
+        let core_t = rows.core.select_columns(&core_columns).transpose();
+        let surfaces_t = rows.surfaces.select_columns(&surface_columns).transpose();
+        let p_dyn = DMatrix::from_column_slice(AUGMENTED, AUGMENTED, p.as_slice());
+        // P H^T, split into the state's rows and the surfaces'.
+        let pht_core = p_dyn.select_columns(&core_columns) * &core_t
+            + self.cross.select_columns(&surface_columns) * &surfaces_t;
+        let pht_map = self.cross.select_rows(&core_columns).transpose() * &core_t
+            + self.own.select_columns(&surface_columns) * &surfaces_t;
+        let s = &rows.core * &pht_core + &rows.surfaces * &pht_map + &rows.noise;
+        let cholesky = s.cholesky().ok_or(NotPositiveDefinite)?;
+        let y = &rows.innovation;
+        let nis = cholesky.solve(y).dot(y);
+        if nis > threshold {
+            return Ok(JointGated {
+                nis,
+                correction: None,
+            });
+        }
+        // With S^-1 formed once, the gains are products, not a triangular solve per column.
+        let s_inverse = cholesky.inverse();
+        let gain_core_t = &s_inverse * pht_core.transpose();
+        let gain_map_t = &s_inverse * pht_map.transpose();
+        let dx = gain_core_t.transpose() * y;
+        let dm = gain_map_t.transpose() * y;
+        let p_change = &pht_core * &gain_core_t;
+        for (entry, change) in p.iter_mut().zip(p_change.iter()) {
+            *entry -= change;
+        }
+        self.cross -= &pht_core * &gain_map_t;
+        self.own -= &pht_map * &gain_map_t;
+        let correction = ErrorState::from_iterator(dx.iter().copied());
+        for at in [ATT, CLONE_ATT] {
+            let turn = Vector3::new(correction[at], correction[at + 1], correction[at + 2]);
+            reset_attitude_rows(&mut self.cross, at, &turn);
+            reset_attitude_error(p, at, &turn);
+        }
+        self.symmetrise_own();
+        for (k, surface) in self.surfaces.iter_mut().enumerate() {
+            surface.inject(&dm.fixed_rows::<3>(SURFACE_STATES * k).into_owned());
+        }
+        symmetrise(p);
+        Ok(JointGated {
+            nis,
+            correction: Some(correction),
+        })
+    }
+
+    pub(crate) fn is_finite(&self) -> bool {
+        self.cross
+            .iter()
+            .chain(self.own.iter())
+            .all(|x| x.is_finite())
+            && self
+                .surfaces
+                .iter()
+                .all(|s| s.distance.is_finite() && s.normal.iter().all(|x| x.is_finite()))
+    }
+
+    /// The surfaces' error-state sigmas, in map order.
+    pub(crate) fn sigmas(&self, index: usize) -> Vector3<f64> {
+        self.own_block(index, index)
+            .diagonal()
+            .map(|v| v.max(0.0).sqrt())
+    }
+
+    fn symmetrise_own(&mut self) {
+        let n = self.own.nrows();
+        for i in 0..n {
+            for j in i + 1..n {
+                let mean = 0.5 * (self.own[(i, j)] + self.own[(j, i)]);
+                self.own[(i, j)] = mean;
+                self.own[(j, i)] = mean;
+            }
+        }
+    }
+}
+
+/// The columns of `rows` with an entry other than zero.
+fn touched_columns(rows: &DMatrix<f64>) -> Vec<usize> {
+    (0..rows.ncols())
+        .filter(|&c| rows.column(c).iter().any(|x| *x != 0.0))
+        .collect()
+}
+
+/// The ESKF reset of an attitude block's rows of the cross-covariance (`update::apply` does the
+/// same to `P`).
+fn reset_attitude_rows(cross: &mut DMatrix<f64>, at: usize, dtheta: &Vector3<f64>) {
+    if cross.ncols() == 0 {
+        return;
+    }
+    let g = Matrix3::identity() + (dtheta * 0.5).cross_matrix();
+    let rows = g * cross.fixed_rows::<3>(at);
+    cross.fixed_rows_mut::<3>(at).copy_from(&rows);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::filter::state::POS;
+    use crate::odometry::tangent_basis;
+
+    fn prior(normal: Vector3<f64>, distance: f64, sigma: f64) -> SurfacePrior {
+        SurfacePrior {
+            normal,
+            distance,
+            basis: tangent_basis(&normal),
+            on_state: SMatrix::zeros(),
+            covariance: Matrix3::identity() * sigma * sigma,
+        }
+    }
+
+    /// One row `innovation = n . dp - dd`: a point of the body's on the surface.
+    fn point_row(map: &MapStates, index: usize, innovation: f64, noise: f64) -> JointRows {
+        let normal = map.surfaces()[index].normal;
+        let mut core = DMatrix::zeros(1, AUGMENTED);
+        for k in 0..3 {
+            core[(0, POS + k)] = normal[k];
+        }
+        let mut surfaces = DMatrix::zeros(1, map.states());
+        surfaces[(0, SURFACE_STATES * index + 2)] = -1.0;
+        JointRows {
+            innovation: DVector::from_element(1, innovation),
+            core,
+            surfaces,
+            noise: DMatrix::from_element(1, 1, noise * noise),
+        }
+    }
+
+    #[test]
+    fn a_surface_seen_from_two_poses_ties_them_together() {
+        // The position is known to 1 m along x; a wall facing x is added with a vague prior,
+        // seen once (which only places the wall), then the position gets its own fix: the
+        // wall's distance follows it through the correlation the first sighting made.
+        let mut p = Covariance::identity();
+        let mut map = MapStates::default();
+        let id = map.add(&p, &prior(Vector3::x(), 5.0, 10.0));
+        assert_eq!(map.index_of(id), Some(0));
+        let first = map
+            .update(&mut p, &point_row(&map, 0, 0.0, 0.01), 1e9)
+            .unwrap();
+        assert!(first.correction.is_some());
+        assert!((map.sigmas(0).z - 1.0).abs() < 1e-2, "{}", map.sigmas(0));
+        let cross = map.cross_block(0);
+        assert!((cross[(POS, 2)] - 1.0).abs() < 1e-2, "{cross}");
+        // A position fix of 0.5 m along x, exact: the wall moves with it.
+        let mut fix = point_row(&map, 0, 0.5, 1e-6);
+        fix.surfaces.fill(0.0);
+        fix.core.fill(0.0);
+        fix.core[(0, POS)] = 1.0;
+        let gated = map.update(&mut p, &fix, 1e9).unwrap();
+        assert!((gated.correction.unwrap()[POS] - 0.5).abs() < 1e-6);
+        assert!((map.surfaces()[0].distance - 5.5).abs() < 1e-3);
+        assert!(map.sigmas(0).z < 0.02);
+    }
+
+    #[test]
+    fn a_refused_update_changes_nothing_and_removal_keeps_the_rest() {
+        let mut p = Covariance::identity() * 1e-4;
+        let mut map = MapStates::default();
+        map.add(&p, &prior(Vector3::x(), 5.0, 0.01));
+        let second = map.add(&p, &prior(Vector3::y(), -2.0, 0.02));
+        let before = map.clone();
+        let gated = map
+            .update(&mut p, &point_row(&map, 0, 3.0, 0.01), 9.0)
+            .unwrap();
+        assert!(gated.correction.is_none() && gated.nis > 9.0);
+        assert_eq!(map, before);
+        map.remove(0);
+        assert_eq!(map.surfaces().len(), 1);
+        assert_eq!(map.index_of(second), Some(0));
+        assert!((map.sigmas(0).z - 0.02).abs() < 1e-12);
+        map.clear();
+        assert!(map.is_empty());
+        assert!(map.add(&p, &prior(Vector3::z(), 1.0, 0.1)) > second);
+    }
+
+    #[test]
+    fn injection_keeps_the_basis_square_to_the_normal() {
+        let mut surface = Surface {
+            id: 0,
+            normal: Vector3::z(),
+            distance: 1.0,
+            basis: tangent_basis(&Vector3::z()),
+        };
+        surface.inject(&Vector3::new(0.1, -0.05, 0.2));
+        assert!((surface.normal.norm() - 1.0).abs() < 1e-12);
+        let b = surface.basis;
+        assert!(b.column(0).dot(&surface.normal).abs() < 1e-12);
+        assert!(b.column(1).dot(&surface.normal).abs() < 1e-12);
+        assert!((b.column(0).norm() - 1.0).abs() < 1e-12);
+        assert!((surface.distance - 1.2).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,406 @@
+//! One odometry epoch on the plane map (`odometry.method = "map"`; docs/design.md, 4.11):
+//! deskew and extract the lines and planes, put each line on the mapped surface it lies on,
+//! test the surfaces against the prediction and exclude one that moved, fuse the lines, place
+//! new surfaces from the planes whose lines lie on none, and forget the surfaces out of reach.
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use super::plane_map::{plane_lines, Association, Standing, SurfaceRecord, Trust};
+use super::record::{EpochOutcome, EpochRecord, UpdateSummary};
+use super::Fusion;
+use crate::estimate::IntegrityStatus;
+use crate::filter::{FilterPhase, LineOnSurface, MapLine, Pose};
+use crate::integrity::blocks::{
+    test_surfaces, unfaced_directions, Block, MapIntegrity, StackedInnovation,
+};
+use crate::odometry::planes::LineRef;
+use crate::odometry::EpochPlanes;
+use crate::sensors::Scan;
+
+/// What the map did in one epoch, for epochs.jsonl.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct MapEpoch {
+    /// Lines offered, and how many lay on a mapped surface, on two at once, or were fused.
+    pub lines: usize,
+    pub on_surfaces: usize,
+    pub ambiguous: usize,
+    pub fused: usize,
+    /// Surfaces placed, excluded (they moved, or were never one surface) and forgotten.
+    pub placed: Vec<u64>,
+    pub excluded: Vec<u64>,
+    /// Surfaces not fused because each alone faced a direction and neither was static by its
+    /// kind nor could the prediction check it.
+    pub unchecked: Vec<u64>,
+    pub forgotten: Vec<u64>,
+    pub integrity: Option<MapIntegrity>,
+    /// The map after the epoch.
+    pub surfaces: Vec<SurfaceRecord>,
+}
+
+/// The prediction's sigma of a lone surface's offset (m) at or below which it checks the
+/// surface: a surface moving with the body then stands out from the prediction within an epoch
+/// of walking pace at 1 Hz (0.1 m against four sigmas of 2 cm).
+const LONE_CHECK_SIGMA_M: f64 = 0.02;
+
+/// Whether `normal` faces a direction none of `others` faces: more than a tenth of it lies
+/// where their normals together hold less than a twentieth of a surface's facing.
+fn faces_alone(normal: &Vector3<f64>, others: &[Vector3<f64>]) -> bool {
+    let gram = others
+        .iter()
+        .fold(nalgebra::Matrix3::zeros(), |sum, n| sum + n * n.transpose());
+    let eigen = gram.symmetric_eigen();
+    let unfaced: f64 = (0..3)
+        .filter(|&k| eigen.eigenvalues[k] < 0.05)
+        .map(|k| normal.dot(&eigen.eigenvectors.column(k)).powi(2))
+        .sum();
+    unfaced > 0.1
+}
+
+/// The epoch's lines `on` (surface, line index) their surfaces.
+fn lines_on(lines: &[EpochLine], on: &[(u64, usize)]) -> Vec<LineOnSurface> {
+    on.iter()
+        .map(|&(surface, k)| LineOnSurface {
+            line: lines[k].line,
+            surface,
+        })
+        .collect()
+}
+
+/// A line of the epoch with where it lies.
+struct EpochLine {
+    at: LineRef,
+    line: MapLine,
+    on: Association,
+}
+
+impl Fusion {
+    pub(super) fn run_map_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
+        let mut current = std::mem::take(&mut self.current);
+        self.extract(scans, t_ref, &mut current);
+        let mut record = super::epoch::planes_record(&current);
+        let pose = match self.filter.phase() {
+            FilterPhase::Aligning => None,
+            _ => self.filter.pose_at_or_after(t_ref),
+        };
+        if let Some(pose) = pose {
+            record.map = Some(self.map_epoch(&current, &pose, &mut record));
+        }
+        record.level_surfaces = self.level_from_building(&current.planes);
+        self.current = current;
+        record
+    }
+
+    fn map_epoch(
+        &mut self,
+        current: &EpochPlanes,
+        pose: &Pose,
+        record: &mut EpochRecord,
+    ) -> MapEpoch {
+        let t_ref = current.t_ref;
+        self.plane_map.sync(self.filter.surfaces());
+        let mut lines = self.epoch_lines(t_ref);
+        let offered: Vec<MapLine> = lines.iter().map(|l| l.line).collect();
+        let associations = self
+            .plane_map
+            .associate(&mut self.filter, &offered, pose, t_ref);
+        for (line, on) in lines.iter_mut().zip(associations) {
+            line.on = on;
+        }
+        // A surface merged away above may still be named by a line associated before.
+        let held = |id: u64| self.filter.surfaces().iter().any(|s| s.id == id);
+        let mut on: Vec<(u64, usize)> = lines
+            .iter()
+            .enumerate()
+            .filter_map(|(k, l)| match l.on {
+                Association::On(id) if held(id) => Some((id, k)),
+                _ => None,
+            })
+            .collect();
+        on.sort_by_key(|&(id, _)| id);
+        let mut epoch = MapEpoch {
+            lines: lines.len(),
+            on_surfaces: on.len(),
+            ambiguous: lines
+                .iter()
+                .filter(|l| l.on == Association::Ambiguous)
+                .count(),
+            fused: 0,
+            placed: Vec::new(),
+            excluded: Vec::new(),
+            unchecked: Vec::new(),
+            forgotten: Vec::new(),
+            integrity: None,
+            surfaces: Vec::new(),
+        };
+        let integrity = self.test_map_lines(&lines, &on, t_ref);
+        let excluded = integrity
+            .as_ref()
+            .map_or_else(Vec::new, |i| i.excluded.clone());
+        let usable = integrity.as_ref().is_none_or(MapIntegrity::usable);
+        let tested: Vec<(u64, usize)> = on
+            .iter()
+            .copied()
+            .filter(|(id, _)| usable && !excluded.contains(id))
+            .collect();
+        let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, tested.clone(), t_ref);
+        self.fuse_map_lines(&lines, &fused, pose, record);
+        let fused_any = record.outcome == EpochOutcome::Fused;
+        self.note_sightings(&lines, &tested, &fused, pose, fused_any);
+        epoch.fused = if record.outcome == EpochOutcome::Fused {
+            fused.len()
+        } else {
+            0
+        };
+        for &id in &excluded {
+            self.plane_map.remove(&mut self.filter, id);
+        }
+        self.integrity = Some(match (&integrity, excluded.is_empty()) {
+            (Some(i), _) if !i.usable() => IntegrityStatus::DetectedNotIsolable,
+            (_, false) => IntegrityStatus::Excluded {
+                planes: excluded.iter().map(|&id| id as usize).collect(),
+            },
+            (_, true) if fused.is_empty() => IntegrityStatus::UnderDetermined,
+            _ => IntegrityStatus::Ok,
+        });
+        record.status = self.integrity.clone();
+        record.unobservable_displacement = self.unfaced(&fused, pose);
+        epoch.placed = self.place_surfaces(current, &lines, pose);
+        let position = self.filter.state().p;
+        epoch.forgotten = self.plane_map.forget(&mut self.filter, &position, t_ref);
+        epoch.excluded = excluded;
+        epoch.unchecked = unchecked;
+        epoch.integrity = integrity;
+        epoch.surfaces = self.plane_map.records(&self.filter);
+        epoch
+    }
+
+    /// Every line of the epoch's two scans, as the map measures with it.
+    fn epoch_lines(&self, t_ref: f64) -> Vec<EpochLine> {
+        (0..2)
+            .flat_map(|scanner| {
+                let scan = self.odometer.scan_of_lines(scanner);
+                (0..scan.segments.len()).map(move |segment| EpochLine {
+                    at: LineRef { scanner, segment },
+                    line: scan.map_line(segment, t_ref),
+                    on: Association::Free,
+                })
+            })
+            .collect()
+    }
+
+    /// The surfaces' test against the prediction, with the exclusion of one that moved.
+    fn test_map_lines(
+        &mut self,
+        lines: &[EpochLine],
+        on: &[(u64, usize)],
+        t_ref: f64,
+    ) -> Option<MapIntegrity> {
+        if on.is_empty() || !self.config.exclusion {
+            return None;
+        }
+        let allowance = self.plane_map.allowance();
+        let stack = self
+            .filter
+            .stack_lines(&lines_on(lines, on), t_ref, &allowance)?;
+        let mut blocks: Vec<Block> = Vec::new();
+        for (row, &(surface, _)) in on.iter().enumerate() {
+            match blocks.last_mut() {
+                Some(block) if block.surface == surface => block.rows.end = 2 * row + 2,
+                _ => blocks.push(Block {
+                    surface,
+                    rows: 2 * row..2 * row + 2,
+                }),
+            }
+        }
+        let limits = self.monitor.config();
+        Some(test_surfaces(
+            &StackedInnovation {
+                innovation: &stack.innovation,
+                covariance: &stack.covariance,
+                cross: &stack.cross,
+                prior: &stack.prior,
+            },
+            &blocks,
+            self.monitor.thresholds(),
+            limits.max_exclusions,
+        ))
+    }
+
+    fn fuse_map_lines(
+        &mut self,
+        lines: &[EpochLine],
+        fused: &[(u64, usize)],
+        pose: &Pose,
+        record: &mut EpochRecord,
+    ) {
+        if fused.is_empty() {
+            record.outcome = EpochOutcome::NotFused;
+            return;
+        }
+        let on = lines_on(lines, fused);
+        let allowance = self.plane_map.allowance();
+        let t_ref = pose.t;
+        (record.outcome, record.update) = match self.filter.update_map_lines(&on, t_ref, &allowance)
+        {
+            Ok(update) if update.accepted => {
+                (EpochOutcome::Fused, Some(UpdateSummary::from(&update)))
+            }
+            Ok(update) => (
+                EpochOutcome::RejectedByGate,
+                Some(UpdateSummary::from(&update)),
+            ),
+            Err(error) => (
+                EpochOutcome::UpdateFailed {
+                    reason: error.to_string(),
+                },
+                None,
+            ),
+        };
+        record.used = fused.len();
+    }
+
+    /// Notes where each surface tested was seen, and whether its lines were fused.
+    fn note_sightings(
+        &mut self,
+        lines: &[EpochLine],
+        tested: &[(u64, usize)],
+        fused: &[(u64, usize)],
+        pose: &Pose,
+        fused_any: bool,
+    ) {
+        let mut ids: Vec<u64> = tested.iter().map(|&(id, _)| id).collect();
+        ids.dedup();
+        for id in ids {
+            let seen: Vec<MapLine> = tested
+                .iter()
+                .filter(|(s, _)| *s == id)
+                .map(|&(_, k)| lines[k].line)
+                .collect();
+            let counted = fused_any && fused.iter().any(|(s, _)| *s == id);
+            self.plane_map.seen(id, &seen, pose, counted);
+        }
+    }
+
+    /// New surfaces from the epoch's planes whose lines lie on no mapped surface, each fitted
+    /// to its lines.
+    fn place_surfaces(
+        &mut self,
+        current: &EpochPlanes,
+        lines: &[EpochLine],
+        pose: &Pose,
+    ) -> Vec<u64> {
+        let index_of = |at: LineRef| lines.iter().position(|l| l.at == at);
+        let trust = Trust {
+            min_extent_m: self.monitor.config().lone_plane_min_extent_m,
+            building: self.odometer.config().building(current.down),
+        };
+        let mut placed = Vec::new();
+        for plane in &current.planes {
+            let members: Option<Vec<usize>> =
+                plane_lines(plane).into_iter().map(index_of).collect();
+            let Some(members) = members else { continue };
+            if members.iter().any(|&k| lines[k].on != Association::Free) {
+                continue;
+            }
+            let own: Vec<MapLine> = members.iter().map(|&k| lines[k].line).collect();
+            placed.extend(
+                self.plane_map
+                    .place(&mut self.filter, plane, &own, pose, &trust),
+            );
+        }
+        placed
+    }
+
+    /// Leaves out the lines of each surface that alone faces a direction (no other surface
+    /// tested faces it) unless its standing lets it (`Standing`): a `Checked` one where the
+    /// prediction knows the offset of its first line to `LONE_CHECK_SIGMA_M`. Alone, a surface
+    /// cannot be tested against another. Returns the lines kept and the surfaces left out.
+    fn leave_out_unchecked_lone(
+        &mut self,
+        lines: &[EpochLine],
+        tested: Vec<(u64, usize)>,
+        t_ref: f64,
+    ) -> (Vec<(u64, usize)>, Vec<u64>) {
+        let epoch = self.filter.map_epoch(t_ref);
+        let normal_of = |id: u64| {
+            self.filter
+                .surfaces()
+                .iter()
+                .find(|s| s.id == id)
+                .map(|s| s.normal)
+        };
+        let mut ids: Vec<u64> = tested.iter().map(|&(id, _)| id).collect();
+        ids.dedup();
+        let normals: Vec<(u64, Vector3<f64>)> = ids
+            .iter()
+            .filter_map(|&id| Some((id, normal_of(id)?)))
+            .collect();
+        let mut unchecked = Vec::new();
+        for &(id, normal) in &normals {
+            let standing = self.plane_map.standing(id);
+            if standing == Some(Standing::Static) {
+                continue;
+            }
+            let others: Vec<Vector3<f64>> = normals
+                .iter()
+                .filter(|(other, _)| *other != id)
+                .map(|(_, n)| *n)
+                .collect();
+            if !faces_alone(&normal, &others) {
+                continue;
+            }
+            let first = tested.iter().find(|(s, _)| *s == id).map(|&(_, k)| k);
+            let checked = standing == Some(Standing::Checked)
+                && first
+                    .zip(epoch.as_ref())
+                    .and_then(|(k, epoch)| {
+                        self.filter
+                            .offset_prediction_sigma(&lines[k].line, id, epoch)
+                    })
+                    .is_some_and(|sigma| sigma <= LONE_CHECK_SIGMA_M);
+            if !checked {
+                unchecked.push(id);
+            }
+        }
+        let kept = tested
+            .into_iter()
+            .filter(|(id, _)| !unchecked.contains(id))
+            .collect();
+        (kept, unchecked)
+    }
+
+    /// Directions (body axes at the epoch) that none of the fused surfaces faces.
+    fn unfaced(&self, fused: &[(u64, usize)], pose: &Pose) -> Vec<[f64; 3]> {
+        let normals: Vec<Vector3<f64>> = self
+            .filter
+            .surfaces()
+            .iter()
+            .filter(|s| fused.iter().any(|(id, _)| *id == s.id))
+            .map(|s| s.normal)
+            .collect();
+        unfaced_directions(&normals)
+            .iter()
+            .map(|d| pose.q.inverse_transform_vector(d).into())
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_surface_faces_alone_what_no_other_faces() {
+        let walls = [Vector3::y(), -Vector3::y(), Vector3::z()];
+        assert!(faces_alone(&Vector3::x(), &walls));
+        assert!(!faces_alone(&Vector3::y(), &walls));
+        // A wall turned 30 degrees faces the corridor's length by a quarter of it.
+        let turned = Vector3::new(0.5, 0.75f64.sqrt(), 0.0);
+        assert!(faces_alone(&turned, &walls));
+        // Turned 15 degrees, by a fifteenth: the walls face it enough.
+        let slight = Vector3::new(15f64.to_radians().sin(), 15f64.to_radians().cos(), 0.0);
+        assert!(!faces_alone(&slight, &walls));
+        assert!(!faces_alone(&-Vector3::x(), &[Vector3::x()]));
+    }
+}
