@@ -3,6 +3,7 @@
 
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::replay::{self, ReplayOptions, BUNDLED_RECORDING};
+use ladar_odometer::odometry::OdometryMethod;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -117,6 +118,44 @@ fn the_report_holds_every_figure_and_each_svg_parses_with_its_series() {
         "the summary table holds the autopilot view"
     );
     assert_truth_is_tum_for_evo(&dir.join("truth.tum"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Replayed on the plane map, the bundled recording's report draws the hallway's walls from
+/// above, each as a segment where it was seen, coloured by the lines it gave.
+#[test]
+fn the_report_draws_the_plane_map_from_above() {
+    let dir = scratch("plane-map");
+    let options = ReplayOptions {
+        recording: Path::new(env!("CARGO_MANIFEST_DIR")).join(BUNDLED_RECORDING),
+        out: Some(dir.clone()),
+        report: true,
+        ..ReplayOptions::default()
+    };
+    replay::replay(&options, |config, _| {
+        let mut config = config
+            .cloned()
+            .expect("the bundled recording carries its config");
+        config.odometry.method = OdometryMethod::Map;
+        FusionEstimator::new(Some(&config))
+    })
+    .unwrap();
+    let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+    let figures = figures(&html);
+    let (_, named, svg) = figures
+        .iter()
+        .find(|(id, _, _)| id == "plane-map")
+        .expect("a plane-map figure");
+    assert!(named.iter().any(|n| n == "100 lines or more"), "{named:?}");
+    let document = roxmltree::Document::parse(svg).unwrap();
+    let segments = document
+        .descendants()
+        .filter(|n| n.tag_name().name() == "polyline")
+        .filter_map(|n| n.attribute("points"))
+        .filter(|points| points.split_whitespace().count() == 2)
+        .count();
+    // Both walls of the hallway at least, and the door or the board beside them.
+    assert!(segments >= 3, "{segments} wall segments");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -26,6 +26,8 @@ pub(crate) enum Mark {
     /// A thin line for bounds such as +-3 sigma.
     Bound,
     Dots,
+    /// Separate segments: each two points in turn are one.
+    Segments,
 }
 
 #[derive(Debug, Clone)]
@@ -167,6 +169,11 @@ where
             Mark::Dots => {
                 chart.draw_series(s.points.iter().map(|&p| Circle::new(p, 2, color.filled())))
             }
+            Mark::Segments => chart.draw_series(
+                s.points
+                    .chunks_exact(2)
+                    .map(|ends| PathElement::new(ends.to_vec(), color.stroke_width(2))),
+            ),
         }
         .map_err(|e| e.to_string())?;
         drawn.label(s.name.as_str()).legend(move |(x, y)| {
@@ -192,7 +199,13 @@ fn drawable(series: &Series, log_y: bool) -> Series {
         .filter(|(x, y)| x.is_finite() && y.is_finite() && (!log_y || *y > 0.0))
         .collect();
     let bucket = points.len().div_ceil(MAX_POINTS / 2).max(1);
-    let thinned = if bucket == 1 || series.mark == Mark::Dots && points.len() <= MAX_POINTS {
+    // Segments are pairs of points: thinning would join ends of different ones.
+    let whole = match series.mark {
+        Mark::Dots => points.len() <= MAX_POINTS,
+        Mark::Segments => true,
+        Mark::Line | Mark::Bound => false,
+    };
+    let thinned = if bucket == 1 || whole {
         points
     } else {
         points.chunks(bucket).flat_map(extremes).collect()

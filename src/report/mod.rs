@@ -8,6 +8,7 @@ pub(crate) mod chart;
 mod epochs;
 mod html;
 pub mod integrity;
+mod plane_map;
 
 use crate::daemon::mavlink_out::QualityPolicy;
 use crate::daemon::replay::ReplaySummary;
@@ -50,6 +51,7 @@ impl RunReport<'_> {
         epochs.integrity_section(&mut page)?;
         epochs.planes_section(&mut page)?;
         self.top_view_section(&mut page, &epochs)?;
+        plane_map::plane_map_section(&mut page, self.epochs, self.track(), &self.truth_offset())?;
         self.autopilot_section(&mut page)?;
         Ok(page.finish())
     }
@@ -134,6 +136,27 @@ impl RunReport<'_> {
         Ok(())
     }
 
+    /// The estimates' positions from the true start point when the run shares the truth's frame
+    /// (a simulated recording replayed from its start), as they are otherwise.
+    fn truth_offset(&self) -> Vector3<f64> {
+        match (self.shares_truth_frame, self.estimates.first()) {
+            (true, Some(first)) => self
+                .truth_at(first.t)
+                .map_or(Vector3::zeros(), |truth| truth.p - first.position),
+            _ => Vector3::zeros(),
+        }
+    }
+
+    /// The estimated track, east and north, from the true start point where there is one.
+    fn track(&self) -> Vec<(f64, f64)> {
+        let offset = self.truth_offset();
+        self.estimates
+            .iter()
+            .map(|e| e.position + offset)
+            .map(|p| (p.y, p.x))
+            .collect()
+    }
+
     fn top_view_section(&self, page: &mut Page, epochs: &EpochView) -> Result<(), ChartError> {
         page.section(
             "Top view",
@@ -141,19 +164,11 @@ impl RunReport<'_> {
              true start point; and the walls (non-horizontal planes) of one epoch, cut at the \
              platform's height, used in blue and excluded in red.",
         );
-        let offset = match (self.shares_truth_frame, self.estimates.first()) {
-            (true, Some(first)) => self
-                .truth_at(first.t)
-                .map_or(Vector3::zeros(), |truth| truth.p - first.position),
-            _ => Vector3::zeros(),
-        };
-        let track = |points: Vec<Vector3<f64>>| points.iter().map(|p| (p.y, p.x)).collect();
-        let mut series = vec![Series::new("estimate", BLUE, Mark::Line).with_points(track(
-            self.estimates.iter().map(|e| e.position + offset).collect(),
-        ))];
+        let offset = self.truth_offset();
+        let mut series = vec![Series::new("estimate", BLUE, Mark::Line).with_points(self.track())];
         if self.shares_truth_frame && !self.truth.is_empty() {
-            let truth = self.truth.iter().map(|s| s.p).collect();
-            series.push(Series::new("truth", GREY, Mark::Line).with_points(track(truth)));
+            let truth = self.truth.iter().map(|s| (s.p.y, s.p.x)).collect();
+            series.push(Series::new("truth", GREY, Mark::Line).with_points(truth));
         }
         let shown = epochs.showcase().and_then(|epoch| {
             let estimate = self.estimate_at(epoch.t)?;
