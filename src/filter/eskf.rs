@@ -630,7 +630,7 @@ impl Eskf {
             // poses, so nothing here carries noise out to a next measurement.
             let threshold = gate.threshold(rows.dof());
             let joint = rows.joint(self.map.states());
-            return self.fuse_joint(&joint, rows.dof(), threshold, kind, t);
+            return self.fuse_joint(&joint, (rows.dof(), threshold), None, kind, t);
         }
         let mut covariance = self.covariance;
         let gated =
@@ -638,12 +638,13 @@ impl Eskf {
         self.commit(gated, covariance, rows.carried_out_covariance(), kind, t)
     }
 
-    /// Fuses rows over the state and the mapped surfaces together.
+    /// Fuses rows over the state and the mapped surfaces together, the state's directions
+    /// `held` projects onto left where they were (`MapStates::update`).
     fn fuse_joint(
         &mut self,
         rows: &JointRows,
-        dof: usize,
-        threshold: f64,
+        (dof, threshold): (usize, f64),
+        held: Option<&Covariance>,
         kind: UpdateKind,
         t: f64,
     ) -> Result<UpdateReport, UpdateError> {
@@ -653,7 +654,7 @@ impl Eskf {
         let mut covariance = self.covariance;
         let joint = self
             .map
-            .update(&mut covariance, rows, threshold)
+            .update(&mut covariance, rows, threshold, held)
             .map_err(|_| UpdateError::BadCovariance)?;
         let gated = Gated {
             nis: joint.nis,

@@ -236,11 +236,17 @@ impl MapStates {
 
     /// The Kalman update of the state (`p`) and the surfaces together, gated on the NIS at
     /// `threshold`. Leaves everything untouched when the gate refuses.
+    ///
+    /// `held` projects onto the state's directions the update must not move (`Held`): their
+    /// gain is zeroed, a suboptimal gain whose covariance `P - G + Q G Q^T` (`G = P H^T S^-1 H
+    /// P`, `Q` the projection) keeps them as unsure as before, while their correlations with
+    /// everything else are updated exactly as by the optimal gain.
     pub(crate) fn update(
         &mut self,
         p: &mut Covariance,
         rows: &JointRows,
         threshold: f64,
+        held: Option<&Covariance>,
     ) -> Result<JointGated, NotPositiveDefinite> {
         self.settle();
         // Rows touch few columns (a line: position, velocity, attitude and one surface), so
@@ -269,9 +275,14 @@ impl MapStates {
         let s_inverse = cholesky.inverse();
         let gain_core_t = &s_inverse * pht_core.transpose();
         let gain_map_t = &s_inverse * pht_map.transpose();
-        let dx = gain_core_t.transpose() * y;
+        let mut dx = gain_core_t.transpose() * y;
         let dm = gain_map_t.transpose() * y;
-        let p_change = &pht_core * &gain_core_t;
+        let mut p_change = &pht_core * &gain_core_t;
+        if let Some(q) = held {
+            let q = DMatrix::from_column_slice(AUGMENTED, AUGMENTED, q.as_slice());
+            dx -= &q * &dx;
+            p_change -= &q * &p_change * q.transpose();
+        }
         for (entry, change) in p.iter_mut().zip(p_change.iter()) {
             *entry -= change;
         }
@@ -385,7 +396,7 @@ mod tests {
         let id = map.add(&p, &prior(Vector3::x(), 5.0, 10.0));
         assert_eq!(map.index_of(id), Some(0));
         let first = map
-            .update(&mut p, &point_row(&map, 0, 0.0, 0.01), 1e9)
+            .update(&mut p, &point_row(&map, 0, 0.0, 0.01), 1e9, None)
             .unwrap();
         assert!(first.correction.is_some());
         assert!((map.sigmas(0).z - 1.0).abs() < 1e-2, "{}", map.sigmas(0));
@@ -396,10 +407,36 @@ mod tests {
         fix.surfaces.fill(0.0);
         fix.core.fill(0.0);
         fix.core[(0, POS)] = 1.0;
-        let gated = map.update(&mut p, &fix, 1e9).unwrap();
+        let gated = map.update(&mut p, &fix, 1e9, None).unwrap();
         assert!((gated.correction.unwrap()[POS] - 0.5).abs() < 1e-6);
         assert!((map.surfaces()[0].distance - 5.5).abs() < 1e-3);
         assert!(map.sigmas(0).z < 0.02);
+    }
+
+    #[test]
+    fn a_held_direction_keeps_its_estimate_and_sigma_while_the_surface_takes_the_innovation() {
+        let mut p = Covariance::identity() * 0.01;
+        let mut map = MapStates::default();
+        map.add(&p, &prior(Vector3::x(), 5.0, 0.1));
+        let mut held = Covariance::zeros();
+        held[(POS, POS)] = 1.0;
+        let before = p;
+        let gated = map
+            .update(&mut p, &point_row(&map, 0, 0.05, 0.001), 1e9, Some(&held))
+            .unwrap();
+        let correction = gated.correction.unwrap();
+        assert_eq!(correction[POS], 0.0);
+        assert!((p[(POS, POS)] - before[(POS, POS)]).abs() < 1e-15);
+        // The wall moved instead, and is now known relative to the body.
+        assert!((map.surfaces()[0].distance - 5.0 + 0.05 * 0.01 / 0.02).abs() < 2e-3);
+        assert!(map.sigmas(0).z < 0.1);
+        // Unheld, the same update splits the innovation between the two.
+        let mut p = before;
+        let mut free = MapStates::default();
+        free.add(&p, &prior(Vector3::x(), 5.0, 0.1));
+        let gated = free.update(&mut p, &point_row(&free, 0, 0.05, 0.001), 1e9, None);
+        assert!(gated.unwrap().correction.unwrap()[POS] > 0.002);
+        assert!(p[(POS, POS)] < before[(POS, POS)]);
     }
 
     #[test]
@@ -410,7 +447,7 @@ mod tests {
         let second = map.add(&p, &prior(Vector3::y(), -2.0, 0.02));
         let before = map.clone();
         let gated = map
-            .update(&mut p, &point_row(&map, 0, 3.0, 0.01), 9.0)
+            .update(&mut p, &point_row(&map, 0, 3.0, 0.01), 9.0, None)
             .unwrap();
         assert!(gated.correction.is_none() && gated.nis > 9.0);
         assert_eq!(map, before);

@@ -75,6 +75,22 @@ struct EpochLine {
 }
 
 impl Fusion {
+    /// Places the surfaces of the epoch the pairs just fused, the one at which the filter
+    /// converged, so that the next epoch measures on the map (`odometry.method = "map"` starts
+    /// and restarts on the pairs: until the velocity is known, a line fits any parallel surface
+    /// within metres, and a start in motion measured on the map took lines for the wrong walls
+    /// and fused nothing for twenty seconds; the pairs match planes by their shape alone).
+    pub(super) fn seed_map(&mut self, t_ref: f64) {
+        let Some(reference) = self.reference.take() else {
+            return;
+        };
+        if let Some(pose) = self.filter.pose_at_or_after(t_ref) {
+            let lines = self.epoch_lines(t_ref);
+            self.place_surfaces(&reference.planes, &lines, &pose);
+        }
+        self.reference = Some(reference);
+    }
+
     pub(super) fn run_map_epoch(&mut self, scans: &[Scan; 2], t_ref: f64) -> EpochRecord {
         let mut current = std::mem::take(&mut self.current);
         self.extract(scans, t_ref, &mut current);
@@ -144,7 +160,8 @@ impl Fusion {
             .filter(|(id, _)| usable && !excluded.contains(id))
             .collect();
         let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, tested.clone(), t_ref);
-        self.fuse_map_lines(&lines, &fused, pose, record);
+        let unfaced = self.unfaced(&fused);
+        self.fuse_map_lines(&lines, &fused, &unfaced, pose, record);
         let fused_any = record.outcome == EpochOutcome::Fused;
         self.note_sightings(&lines, &tested, &fused, pose, fused_any);
         epoch.fused = if record.outcome == EpochOutcome::Fused {
@@ -164,7 +181,10 @@ impl Fusion {
             _ => IntegrityStatus::Ok,
         });
         record.status = self.integrity.clone();
-        record.unobservable_displacement = self.unfaced(&fused, pose);
+        record.unobservable_displacement = unfaced
+            .iter()
+            .map(|d| pose.q.inverse_transform_vector(d).into())
+            .collect();
         epoch.placed = self.place_surfaces(current, &lines, pose);
         let position = self.filter.state().p;
         epoch.forgotten = self.plane_map.forget(&mut self.filter, &position, t_ref);
@@ -231,6 +251,7 @@ impl Fusion {
         &mut self,
         lines: &[EpochLine],
         fused: &[(u64, usize)],
+        unfaced: &[Vector3<f64>],
         pose: &Pose,
         record: &mut EpochRecord,
     ) {
@@ -241,7 +262,9 @@ impl Fusion {
         let on = lines_on(lines, fused);
         let allowance = self.plane_map.allowance();
         let t_ref = pose.t;
-        (record.outcome, record.update) = match self.filter.update_map_lines(&on, t_ref, &allowance)
+        (record.outcome, record.update) = match self
+            .filter
+            .update_map_lines(&on, t_ref, &allowance, unfaced)
         {
             Ok(update) if update.accepted => {
                 (EpochOutcome::Fused, Some(UpdateSummary::from(&update)))
@@ -370,8 +393,8 @@ impl Fusion {
         (kept, unchecked)
     }
 
-    /// Directions (body axes at the epoch) that none of the fused surfaces faces.
-    fn unfaced(&self, fused: &[(u64, usize)], pose: &Pose) -> Vec<[f64; 3]> {
+    /// Directions (navigation axes) that none of the surfaces `fused` faces.
+    fn unfaced(&self, fused: &[(u64, usize)]) -> Vec<Vector3<f64>> {
         let normals: Vec<Vector3<f64>> = self
             .filter
             .surfaces()
@@ -380,9 +403,6 @@ impl Fusion {
             .map(|s| s.normal)
             .collect();
         unfaced_directions(&normals)
-            .iter()
-            .map(|d| pose.q.inverse_transform_vector(d).into())
-            .collect()
     }
 }
 

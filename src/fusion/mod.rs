@@ -182,13 +182,20 @@ impl Fusion {
             return None;
         }
         self.counters.epochs += 1;
-        Some(match self.odometer.config().method {
-            OdometryMethod::Pairs => self.run_epoch(&scans, t_ref),
-            OdometryMethod::Map => {
+        let method = self.odometer.config().method;
+        Some(
+            if method == OdometryMethod::Map && self.filter.converged() {
                 self.last_map_epoch = Some(t_ref);
+                self.reference = None;
                 self.run_map_epoch(&scans, t_ref)
-            }
-        })
+            } else {
+                let record = self.run_epoch(&scans, t_ref);
+                if method == OdometryMethod::Map && self.filter.converged() {
+                    self.seed_map(t_ref);
+                }
+                record
+            },
+        )
     }
 
     /// How many surfaces the plane map holds (`odometry.method = "map"`).
