@@ -261,7 +261,9 @@ impl MapStates {
             + self.cross.select_columns(&surface_columns) * &surfaces_t;
         let pht_map = self.cross.select_rows(&core_columns).transpose() * &core_t
             + self.own.select_columns(&surface_columns) * &surfaces_t;
-        let s = &rows.core * &pht_core + &rows.surfaces * &pht_map + &rows.noise;
+        let s = core_t.transpose() * pht_core.select_rows(&core_columns)
+            + surfaces_t.transpose() * pht_map.select_rows(&surface_columns)
+            + &rows.noise;
         let cholesky = s.cholesky().ok_or(NotPositiveDefinite)?;
         let y = &rows.innovation;
         let nis = cholesky.solve(y).dot(y);

@@ -59,6 +59,11 @@ impl Extent {
         })
     }
 
+    /// The normal of the plane the box lies in (as placed).
+    fn normal(&self) -> Vector3<f64> {
+        self.axes.column(0).cross(&self.axes.column(1))
+    }
+
     /// How far the box reaches up and down, m.
     fn vertical_spread(&self) -> f64 {
         let heights = [
@@ -168,6 +173,11 @@ pub struct SurfaceRecord {
 /// prediction alone (`Standing`), m.
 const CORROBORATING_SPREAD_M: f64 = 0.3;
 
+/// A line that leaves a surface's plane by more than this (the sine of about 11 degrees) is
+/// not tried on it: beyond any attitude doubt the gate would accept, and most of an epoch's
+/// lines against most surfaces (a floor line against a wall) end there, before the chi-square.
+const MAX_TILT_OUT_OF_PLANE: f64 = 0.2;
+
 /// Surfaces agreeing this closely where a line lies are one surface placed twice.
 const DUPLICATE_COSINE: f64 = 0.9994; // 2 degrees
 const DUPLICATE_DISTANCE_M: f64 = 0.05;
@@ -220,9 +230,11 @@ impl PlaneMap {
             .iter()
             .map(|line| {
                 let ends = ends_in_navigation(line, pose);
+                let along = pose.q.transform_vector(&line.direction);
                 let mut fits: Vec<(f64, u64)> = self
                     .surfaces
                     .iter()
+                    .filter(|m| m.extent.normal().dot(&along).abs() <= MAX_TILT_OUT_OF_PLANE)
                     .filter(|m| near(m, ends))
                     .filter_map(|m| {
                         let (y, s) = filter.line_fit(line, m.id, &epoch, &allowance)?;
@@ -271,7 +283,7 @@ impl PlaneMap {
         for line in lines {
             mapped.extent.grow(ends_in_navigation(line, pose));
         }
-        let reach = placement_reach(&mapped.extent.axes, pose);
+        let reach = mapped.extent.normal().dot(&pose.p);
         let [near, far] = &mut mapped.seen_across;
         (*near, *far) = (near.min(reach), far.max(reach));
         let corroborated = mapped.extent.vertical_spread() >= CORROBORATING_SPREAD_M
@@ -312,7 +324,7 @@ impl PlaneMap {
             lines_fused: 0,
             extent,
             standing: trust.standing(plane),
-            seen_across: [placement_reach(&axes, pose); 2],
+            seen_across: [extent.normal().dot(&pose.p); 2],
         });
         Some(id)
     }
@@ -418,12 +430,6 @@ impl PlaneMap {
             })
             .collect()
     }
-}
-
-/// Where the body at `pose` lies along the normal of the surface whose in-plane `axes` are
-/// given, m.
-fn placement_reach(axes: &Matrix3x2<f64>, pose: &Pose) -> f64 {
-    axes.column(0).cross(&axes.column(1)).dot(&pose.p)
 }
 
 /// Whether surfaces `a` and `b` are one surface where `point` (NED) lies.
