@@ -1,10 +1,11 @@
 //! The `ladar-odometer` command line: thin, everything it does lives in `daemon`.
 
-use clap::{CommandFactory, Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand, ValueEnum};
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
 use ladar_odometer::daemon::replay::{self, ReplayOptions};
 use ladar_odometer::daemon::run::{self, RunOptions};
 use ladar_odometer::daemon::serve;
+use ladar_odometer::odometry::OdometryMethod;
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -18,6 +19,22 @@ use tokio_util::sync::CancellationToken;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+}
+
+/// `[odometry] method`, as `replay --method` names it.
+#[derive(Clone, Copy, ValueEnum)]
+enum Method {
+    Pairs,
+    Map,
+}
+
+impl From<Method> for OdometryMethod {
+    fn from(method: Method) -> Self {
+        match method {
+            Method::Pairs => OdometryMethod::Pairs,
+            Method::Map => OdometryMethod::Map,
+        }
+    }
 }
 
 #[derive(Subcommand)]
@@ -65,6 +82,10 @@ enum Command {
         /// bounds, integrity tests, planes, epoch outcomes, a top view, what the autopilot saw.
         #[arg(long, requires = "out")]
         report: bool,
+        /// Measure the motion by this odometer instead of the configured one ([odometry]
+        /// method): the paper's scan-to-scan pairs, or the plane map.
+        #[arg(long, value_enum, value_name = "METHOD")]
+        method: Option<Method>,
     },
     /// Simulate a scenario (built-in name or TOML file) into a recording, each sensor behind its
     /// driver's emulator exactly as a live run records it, with /truth.
@@ -169,6 +190,7 @@ fn main() -> ExitCode {
             start,
             duration,
             report,
+            method,
         } => replay_recording(
             recording,
             config,
@@ -180,7 +202,7 @@ fn main() -> ExitCode {
             },
             mavlink,
             tolerant,
-            report,
+            (report, method.map(OdometryMethod::from)),
         ),
         Command::Simulate { scenario, out } => simulate(&scenario, &out),
         Command::IntegrityCheck {
@@ -333,7 +355,7 @@ fn replay_recording(
     window: ReplayWindow,
     mavlink: Option<String>,
     tolerant: bool,
-    report: bool,
+    (report, method): (bool, Option<OdometryMethod>),
 ) -> Result<(), String> {
     let seconds = |value: f64, what: &str| {
         if value.is_finite() && value >= 0.0 {
@@ -360,8 +382,14 @@ fn replay_recording(
             .transpose()?,
         report,
     };
-    let (summary, _) = replay::replay(&options, |config, _| FusionEstimator::new(config))
-        .map_err(|e| e.to_string())?;
+    let (summary, _) = replay::replay(&options, |config, _| {
+        let mut config = config.cloned();
+        if let (Some(config), Some(method)) = (&mut config, method) {
+            config.odometry.method = method;
+        }
+        FusionEstimator::new(config.as_ref())
+    })
+    .map_err(|e| e.to_string())?;
     print!("{summary}");
     Ok(())
 }

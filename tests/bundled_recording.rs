@@ -150,3 +150,43 @@ fn replay_honours_rust_log() {
         "{default}"
     );
 }
+
+/// `replay --method map` measures on the plane map whatever the recording configured: its
+/// epochs.jsonl carries the map, with lines fused on surfaces, and the summary's velocity
+/// against truth is as good as the hover's.
+#[test]
+fn replay_method_map_measures_on_the_plane_map() {
+    let out = std::env::temp_dir().join(format!("ladar-method-map-{}", std::process::id()));
+    let output = std::process::Command::new(env!("CARGO_BIN_EXE_ladar-odometer"))
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .args(["replay", "--method", "map", "--out"])
+        .arg(&out)
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{output:?}");
+    let epochs = std::fs::read_to_string(out.join("epochs.jsonl")).unwrap();
+    std::fs::remove_dir_all(&out).unwrap();
+    let fused_on_the_map = epochs
+        .lines()
+        .map(|line| serde_json::from_str::<serde_json::Value>(line).unwrap())
+        .filter(|epoch| epoch["map"]["fused"].as_u64().is_some_and(|n| n >= 4))
+        .count();
+    assert!(
+        fused_on_the_map >= 40,
+        "{fused_on_the_map} epochs fused on the map"
+    );
+    let summary = String::from_utf8(output.stdout).unwrap();
+    let std_line = summary
+        .lines()
+        .find(|l| l.contains("velocity error NED  std"))
+        .unwrap_or_else(|| panic!("{summary}"));
+    let numbers: Vec<f64> = std_line
+        .split(['[', ']'])
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .map(|n| n.parse().unwrap())
+        .collect();
+    assert!(numbers.iter().all(|&v| v < 0.015), "{std_line}");
+}
