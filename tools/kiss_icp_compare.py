@@ -13,7 +13,7 @@ mavlink.tlog, usable or not); KISS-ICP's velocity is its poses differenced betwe
     pip install kiss-icp mcap pymavlink
     cargo build --release
     target/release/ladar-odometer simulate --scenario open-room --out /tmp/open-room.mcap
-    python3 tools/kiss_icp_compare.py /tmp/open-room.mcap
+    python3 tools/kiss_icp_compare.py /tmp/open-room.mcap [--method map]
 
 KISS-ICP is run with its defaults but for what a 30 m indoor 2D scanner pair needs: a 30 m
 range, no deskew (the scans are short and the fusion's deskew is not KISS-ICP's to use), and a
@@ -223,13 +223,19 @@ def main():
         default=10.0,
         help="score from this time on, s (default 10: the built-in scenes' still start)",
     )
+    parser.add_argument(
+        "--method",
+        choices=["pairs", "map"],
+        help="replay with this odometer (replay --method) instead of the recorded one",
+    )
     arguments = parser.parse_args()
     if not arguments.binary.exists():
         sys.exit(f"{arguments.binary} not found: run `cargo build --release` or pass --binary")
     with tempfile.TemporaryDirectory() as out:
         started = time.perf_counter()
+        method = ["--method", arguments.method] if arguments.method else []
         subprocess.run(
-            [arguments.binary, "replay", arguments.recording, "--out", out],
+            [arguments.binary, "replay", arguments.recording, "--out", out, *method],
             check=True,
             stdout=subprocess.DEVNULL,
         )
@@ -248,7 +254,7 @@ def main():
     print("| method | velocity error std N, E, D (m/s) | attitude error std r, p, y (mrad) | horizontal error at the end (m) | time per frame |")
     print("|---|---|---|---|---|")
     for name, figures, seconds in [
-        ("ladar-odometer (whole replay)", ours, ours_s),
+        (f"ladar-odometer{', ' + arguments.method if arguments.method else ''} (whole replay)", ours, ours_s),
         ("KISS-ICP (registration only)", kiss, kiss_s),
     ]:
         velocity = ", ".join(f"{v:.3f}" for v in figures["velocity_error_std_ned"])
