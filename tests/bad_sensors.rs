@@ -7,7 +7,6 @@ use ladar_odometer::daemon::run::{self, RunError, RunOptions};
 use ladar_odometer::daemon::serve::{self, SharedScene, StillRoom};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::AsyncWriteExt;
@@ -18,7 +17,7 @@ use tokio_util::task::TaskTracker;
 mod support;
 use support::{free_port, rig_config as config_text};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> support::Scratch {
     support::scratch("bad", name)
 }
 

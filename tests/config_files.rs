@@ -1,6 +1,9 @@
 //! config/default.toml and every example in config/examples/ load, and default.toml says what
 //! the code does: each key it sets equals the code's default.
 
+#[allow(dead_code)]
+mod support;
+
 use ladar_odometer::daemon::config::{Config, ImuOutput, ImuSeries, ScanStream};
 use ladar_odometer::fusion::FusionSettings;
 use std::path::{Path, PathBuf};
@@ -21,6 +24,7 @@ fn load(path: &Path, key_file: &Path) -> Config {
 /// One file per test: tests run in parallel, and one rewriting a shared file while another
 /// reads it shows the reader an empty key.
 fn key_file(test: &str) -> PathBuf {
+    support::sweep_stale("config-key");
     let name = format!("ladar-config-key-{}-{test}", std::process::id());
     let path = std::env::temp_dir().join(name);
     std::fs::write(&path, "ab".repeat(32)).unwrap();

@@ -15,7 +15,7 @@ use ladar_odometer::sensors::{ImuSample, Scan, ScannerGeometry};
 use mavlink::dialects::ardupilotmega::{MavMessage, ODOMETRY_DATA};
 use mavlink::{MavlinkReader, MavlinkVersion};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -191,7 +191,7 @@ fn config_text(front: &str, pitched: &str, imu: &str, mavlink: Option<u16>) -> S
     text
 }
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> support::Scratch {
     support::scratch("live", name)
 }
 

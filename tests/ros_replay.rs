@@ -4,6 +4,8 @@
 
 #[path = "support/ros_mcap.rs"]
 mod ros_mcap;
+#[allow(dead_code)]
+mod support;
 
 use ladar_odometer::daemon::config::Config;
 use ladar_odometer::daemon::fusion_estimator::FusionEstimator;
@@ -17,6 +19,7 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 fn scratch(name: &str) -> PathBuf {
+    support::sweep_stale("ros");
     let dir = std::env::temp_dir().join(format!("ladar-ros-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)

@@ -2,6 +2,9 @@
 //! simulator's own scans and IMU samples (ranges to the millimetre, times through the clock
 //! estimators), the truth, and the rig's configuration; and a damaged copy must fail cleanly.
 
+#[allow(dead_code)]
+mod support;
+
 use ladar_odometer::daemon::pipeline::{EventTrace, Traced};
 use ladar_odometer::daemon::recording::{
     ReadMode, Recording, CONFIG_METADATA_KEY, CONFIG_METADATA_NAME,
@@ -13,6 +16,7 @@ use ladar_sim::{Scenario, SimEvent, Simulator, BUILTIN_NAMES};
 use std::path::PathBuf;
 
 fn scratch(name: &str) -> PathBuf {
+    support::sweep_stale("sim");
     let dir = std::env::temp_dir().join(format!("ladar-sim-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     dir.join(name)

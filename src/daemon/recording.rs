@@ -1228,6 +1228,7 @@ mod tests {
         let whole = Recording::open(&file, ReadMode::Strict).unwrap();
         let order: Vec<u64> = whole.messages.iter().map(|m| m.log_time_ns).collect();
         assert_eq!(order, times);
+        std::fs::remove_file(&file).unwrap();
     }
 
     #[test]
@@ -1259,6 +1260,7 @@ mod tests {
         }
         assert_eq!(count, traffic().len());
         assert!(tolerant.loss().is_some());
+        std::fs::remove_file(&file).unwrap();
     }
 
     #[test]
