@@ -12,9 +12,9 @@
 use ladar_lab::evaluate::{run_scenario_with, AccuracyReport};
 use ladar_odometer::filter::Observability;
 use ladar_odometer::fusion::record::{EpochOutcome, EpochRecord};
-use ladar_odometer::fusion::FusionSettings;
+use ladar_odometer::fusion::{Fusion, FusionSettings};
 use ladar_odometer::odometry::OdometryMethod;
-use ladar_sim::{ImuSpread, Scenario, Simulator};
+use ladar_sim::{ImuSpread, Scenario, SimEvent, Simulator, Trajectory};
 use nalgebra::Vector3;
 use serde::Serialize;
 
@@ -583,4 +583,63 @@ fn study_plane_map_20_runs() {
             }
         }
     }
+}
+
+/// Resident memory of this process, bytes (Linux).
+fn resident_bytes() -> Option<u64> {
+    let statm = std::fs::read_to_string("/proc/self/statm").ok()?;
+    let pages: u64 = statm.split_whitespace().nth(1)?.parse().ok()?;
+    Some(pages * 4096)
+}
+
+/// An hour of the hall walk on the plane map at 10 Hz, lap after lap round its pillars: the
+/// map forgets what it leaves behind (`max_surfaces`, `forget_after_s`), so memory stays flat.
+/// The fusion is driven alone (the evaluation's error series would grow with the hour);
+/// resident memory is sampled every simulated minute, and from the tenth minute on it may not
+/// grow by more than 1 MB (`cargo test --release -p ladar-lab --test plane_map_scenes --
+/// --ignored --nocapture memory`).
+#[test]
+#[ignore]
+fn study_plane_map_memory_over_an_hour() {
+    let mut scenario = scenario("hall-walk", Rig::Paper, 10.0);
+    if let Trajectory::Waypoints { waypoints_m, .. } = &mut scenario.trajectory {
+        let lap = waypoints_m.clone();
+        for _ in 0..40 {
+            waypoints_m.extend(lap.iter().copied());
+        }
+    }
+    scenario.duration_s = 3600.0;
+    let mut simulator = Simulator::new(&scenario).unwrap();
+    let mut settings = map_settings(10.0);
+    settings.filter.imu_mount_rpy_deg = simulator.imu().unwrap().mount_rpy_deg;
+    let mut fusion = Fusion::new(settings, simulator.scanner_setups().unwrap()).unwrap();
+    let mut samples: Vec<(f64, u64, usize)> = Vec::new();
+    while let Some(event) = simulator.next_event() {
+        match event {
+            SimEvent::Imu(sample) => {
+                fusion.push_imu(sample);
+            }
+            SimEvent::Scan { scan, t } => {
+                fusion.push_scan(scan);
+                if t >= samples.last().map_or(60.0, |(at, ..)| at + 60.0) {
+                    let bytes = resident_bytes().unwrap_or(0);
+                    samples.push((t, bytes, fusion.mapped_surfaces()));
+                }
+            }
+            SimEvent::Truth(_) => {}
+        }
+    }
+    for (t, bytes, held) in &samples {
+        println!(
+            "{t:.0} s: {:.2} MB resident, {held} surfaces",
+            *bytes as f64 / 1e6
+        );
+    }
+    let settled: Vec<u64> = samples.iter().skip(9).map(|(_, bytes, _)| *bytes).collect();
+    let growth = settled.last().unwrap() - settled.iter().min().unwrap();
+    assert!(samples.len() >= 55, "{} minutes", samples.len());
+    assert!(
+        growth <= 1_000_000,
+        "grew by {growth} bytes after the tenth minute"
+    );
 }
