@@ -4,8 +4,9 @@
 //!
 //! Stages, one a file: `thresholds` (risk budgets to gamma and chi-square thresholds),
 //! `parity` (parity space, per-plane w-tests, minimum detectable biases), `protection`
-//! (protection levels), `exclusion` (the detect-exclude-retest loop over one solve or an epoch); `blocks`, the same
-//! test with a mapped surface's rows in the role of a plane (`odometry.method = "map"`).
+//! (protection levels), `exclusion` (the detect-exclude-retest loop over one solve or an
+//! epoch); `blocks`, the same test with a mapped surface's rows in the role of a plane
+//! (`odometry.method = "map"`).
 
 pub mod blocks;
 mod config;
