@@ -67,6 +67,23 @@ fn lines_on(lines: &[EpochLine], on: &[(u64, usize)]) -> Vec<LineOnSurface> {
         .collect()
 }
 
+/// The epoch's verdict as the estimate carries it: not isolable, excluded, nothing to fuse,
+/// or fine.
+fn integrity_status(
+    integrity: Option<&MapIntegrity>,
+    excluded: &[u64],
+    fused: &[(u64, usize)],
+) -> IntegrityStatus {
+    match integrity {
+        Some(i) if !i.usable() => IntegrityStatus::DetectedNotIsolable,
+        _ if !excluded.is_empty() => IntegrityStatus::Excluded {
+            planes: excluded.iter().map(|&id| id as usize).collect(),
+        },
+        _ if fused.is_empty() => IntegrityStatus::UnderDetermined,
+        _ => IntegrityStatus::Ok,
+    }
+}
+
 /// A line of the epoch with where it lies.
 struct EpochLine {
     at: LineRef,
@@ -115,6 +132,53 @@ impl Fusion {
     ) -> MapEpoch {
         let t_ref = current.t_ref;
         self.plane_map.sync(self.filter.surfaces());
+        let (lines, on) = self.associated_lines(pose, t_ref);
+        let integrity = self.test_map_lines(&lines, &on, t_ref);
+        let excluded = integrity
+            .as_ref()
+            .map_or_else(Vec::new, |i| i.excluded.clone());
+        let usable = integrity.as_ref().is_none_or(MapIntegrity::usable);
+        let tested: Vec<(u64, usize)> = on
+            .iter()
+            .copied()
+            .filter(|(id, _)| usable && !excluded.contains(id))
+            .collect();
+        let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, tested.clone(), t_ref);
+        let unfaced = self.unfaced(&fused);
+        self.fuse_map_lines(&lines, &fused, &unfaced, pose, record);
+        let fused_any = record.outcome == EpochOutcome::Fused;
+        self.note_sightings(&lines, &tested, &fused, pose, fused_any);
+        for &id in &excluded {
+            self.plane_map.remove(&mut self.filter, id);
+        }
+        self.integrity = Some(integrity_status(integrity.as_ref(), &excluded, &fused));
+        record.status = self.integrity.clone();
+        record.unobservable_displacement = unfaced
+            .iter()
+            .map(|d| pose.q.inverse_transform_vector(d).into())
+            .collect();
+        let placed = self.place_surfaces(current, &lines, pose);
+        let position = self.filter.state().p;
+        MapEpoch {
+            lines: lines.len(),
+            on_surfaces: on.len(),
+            ambiguous: lines
+                .iter()
+                .filter(|l| l.on == Association::Ambiguous)
+                .count(),
+            fused: if fused_any { fused.len() } else { 0 },
+            placed,
+            excluded,
+            unchecked,
+            forgotten: self.plane_map.forget(&mut self.filter, &position, t_ref),
+            integrity,
+            surfaces: self.plane_map.records(&self.filter),
+        }
+    }
+
+    /// The epoch's lines with the surface each lies on, and the (surface, line) pairs of those
+    /// on one, by surface.
+    fn associated_lines(&mut self, pose: &Pose, t_ref: f64) -> (Vec<EpochLine>, Vec<(u64, usize)>) {
         let mut lines = self.epoch_lines(t_ref);
         let offered: Vec<MapLine> = lines.iter().map(|l| l.line).collect();
         let associations = self
@@ -134,65 +198,7 @@ impl Fusion {
             })
             .collect();
         on.sort_by_key(|&(id, _)| id);
-        let mut epoch = MapEpoch {
-            lines: lines.len(),
-            on_surfaces: on.len(),
-            ambiguous: lines
-                .iter()
-                .filter(|l| l.on == Association::Ambiguous)
-                .count(),
-            fused: 0,
-            placed: Vec::new(),
-            excluded: Vec::new(),
-            unchecked: Vec::new(),
-            forgotten: Vec::new(),
-            integrity: None,
-            surfaces: Vec::new(),
-        };
-        let integrity = self.test_map_lines(&lines, &on, t_ref);
-        let excluded = integrity
-            .as_ref()
-            .map_or_else(Vec::new, |i| i.excluded.clone());
-        let usable = integrity.as_ref().is_none_or(MapIntegrity::usable);
-        let tested: Vec<(u64, usize)> = on
-            .iter()
-            .copied()
-            .filter(|(id, _)| usable && !excluded.contains(id))
-            .collect();
-        let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, tested.clone(), t_ref);
-        let unfaced = self.unfaced(&fused);
-        self.fuse_map_lines(&lines, &fused, &unfaced, pose, record);
-        let fused_any = record.outcome == EpochOutcome::Fused;
-        self.note_sightings(&lines, &tested, &fused, pose, fused_any);
-        epoch.fused = if record.outcome == EpochOutcome::Fused {
-            fused.len()
-        } else {
-            0
-        };
-        for &id in &excluded {
-            self.plane_map.remove(&mut self.filter, id);
-        }
-        self.integrity = Some(match (&integrity, excluded.is_empty()) {
-            (Some(i), _) if !i.usable() => IntegrityStatus::DetectedNotIsolable,
-            (_, false) => IntegrityStatus::Excluded {
-                planes: excluded.iter().map(|&id| id as usize).collect(),
-            },
-            (_, true) if fused.is_empty() => IntegrityStatus::UnderDetermined,
-            _ => IntegrityStatus::Ok,
-        });
-        record.status = self.integrity.clone();
-        record.unobservable_displacement = unfaced
-            .iter()
-            .map(|d| pose.q.inverse_transform_vector(d).into())
-            .collect();
-        epoch.placed = self.place_surfaces(current, &lines, pose);
-        let position = self.filter.state().p;
-        epoch.forgotten = self.plane_map.forget(&mut self.filter, &position, t_ref);
-        epoch.excluded = excluded;
-        epoch.unchecked = unchecked;
-        epoch.integrity = integrity;
-        epoch.surfaces = self.plane_map.records(&self.filter);
-        epoch
+        (lines, on)
     }
 
     /// Every line of the epoch's two scans, as the map measures with it.
