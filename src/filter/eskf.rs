@@ -4,7 +4,7 @@
 //! prior, has a file of its own in `eskf/`, as in EKF2's `aid_sources/`, so that an aid is read
 //! (or added) in one place.
 
-use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use thiserror::Error;
 
 use super::alignment::{looks_stationary, RecentForce, StationaryMeans};
@@ -644,7 +644,7 @@ impl Eskf {
         &mut self,
         rows: &JointRows,
         (dof, threshold): (usize, f64),
-        held: Option<&Covariance>,
+        held: Option<&Matrix3<f64>>,
         kind: UpdateKind,
         t: f64,
     ) -> Result<UpdateReport, UpdateError> {
@@ -670,8 +670,8 @@ impl Eskf {
     fn commit(
         &mut self,
         gated: Gated,
-        covariance: crate::filter::state::Covariance,
-        carried_out: Option<nalgebra::SMatrix<f64, 6, 6>>,
+        covariance: Covariance,
+        carried_out: Option<SMatrix<f64, 6, 6>>,
         kind: UpdateKind,
         t: f64,
     ) -> Result<UpdateReport, UpdateError> {

@@ -12,10 +12,12 @@
 //! transitions `F` are gathered in `transition` and applied to `X` only when it is read
 //! (`settle`), so that an IMU sample costs the same 21 columns however many surfaces there are.
 
+use std::ops::SubAssign;
+
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, SMatrix, Vector3};
 
 use super::covariance::{symmetrise, ErrorDynamics};
-use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT, ERROR_STATES};
+use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT, ERROR_STATES, POS};
 use super::update::{reset_attitude_error, NotPositiveDefinite};
 
 /// Error states of one surface: two tangent turns of its normal, then its distance.
@@ -237,16 +239,16 @@ impl MapStates {
     /// The Kalman update of the state (`p`) and the surfaces together, gated on the NIS at
     /// `threshold`. Leaves everything untouched when the gate refuses.
     ///
-    /// `held` projects onto the state's directions the update must not move (`Held`): their
-    /// gain is zeroed, a suboptimal gain whose covariance `P - G + Q G Q^T` (`G = P H^T S^-1 H
-    /// P`, `Q` the projection) keeps them as unsure as before, while their correlations with
-    /// everything else are updated exactly as by the optimal gain.
+    /// `held` projects onto the position's directions the update must not move: their gain is
+    /// zeroed, a suboptimal gain whose covariance `P - G + Q G Q^T` (`G = P H^T S^-1 H P`, `Q`
+    /// the projection, zero outside the position) keeps them as unsure as before, while their
+    /// correlations with everything else are updated exactly as by the optimal gain.
     pub(crate) fn update(
         &mut self,
         p: &mut Covariance,
         rows: &JointRows,
         threshold: f64,
-        held: Option<&Covariance>,
+        held: Option<&Matrix3<f64>>,
     ) -> Result<JointGated, NotPositiveDefinite> {
         self.settle();
         // Rows touch few columns (a line: position, velocity, attitude and one surface), so
@@ -281,9 +283,10 @@ impl MapStates {
         let dm = gain_map_t.transpose() * y;
         let mut p_change = &pht_core * &gain_core_t;
         if let Some(q) = held {
-            let q = DMatrix::from_column_slice(AUGMENTED, AUGMENTED, q.as_slice());
-            dx -= &q * &dx;
-            p_change -= &q * &p_change * q.transpose();
+            let moved = q * dx.fixed_rows::<3>(POS);
+            dx.fixed_rows_mut::<3>(POS).sub_assign(&moved);
+            let kept = q * p_change.fixed_view::<3, 3>(POS, POS) * q;
+            p_change.fixed_view_mut::<3, 3>(POS, POS).sub_assign(&kept);
         }
         for (entry, change) in p.iter_mut().zip(p_change.iter()) {
             *entry -= change;
@@ -358,7 +361,6 @@ fn reset_attitude_rows(cross: &mut DMatrix<f64>, at: usize, dtheta: &Vector3<f64
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::filter::state::POS;
     use crate::odometry::tangent_basis;
 
     fn prior(normal: Vector3<f64>, distance: f64, sigma: f64) -> SurfacePrior {
@@ -420,8 +422,7 @@ mod tests {
         let mut p = Covariance::identity() * 0.01;
         let mut map = MapStates::default();
         map.add(&p, &prior(Vector3::x(), 5.0, 0.1));
-        let mut held = Covariance::zeros();
-        held[(POS, POS)] = 1.0;
+        let held = Matrix3::from_diagonal(&Vector3::x());
         let before = p;
         let gated = map
             .update(&mut p, &point_row(&map, 0, 0.05, 0.001), 1e9, Some(&held))

@@ -8,7 +8,7 @@ use super::{Eskf, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::consistency::chi_square_quantile;
 use crate::filter::history::Pose;
 use crate::filter::map_states::{JointRows, Surface, SurfacePrior, SURFACE_STATES};
-use crate::filter::state::{Covariance, ATT, AUGMENTED, POS, VEL};
+use crate::filter::state::{ATT, AUGMENTED, POS, VEL};
 
 /// A line of one scan in the body frame at its epoch's reference time, as the map sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -322,36 +322,24 @@ impl Eskf {
     ) -> Option<LineStack> {
         let epoch = self.epoch(t_ref)?;
         self.map.settle();
+        let rows = self.rows_of(lines, &epoch, allowance).ok()?;
         let mut used: Vec<usize> = Vec::new();
-        let mut rows = Vec::with_capacity(lines.len());
-        for on in lines {
-            let index = self.map.index_of(on.surface)?;
-            let slot = used.iter().position(|&u| u == index).unwrap_or_else(|| {
-                used.push(index);
-                used.len() - 1
-            });
-            let surface = &self.map.surfaces()[index];
-            rows.push((slot, line_rows(&on.line, surface, &epoch, allowance)));
-        }
-        let states = 9 + SURFACE_STATES * used.len();
+        let slots: Vec<usize> = rows
+            .iter()
+            .map(|(index, _)| {
+                used.iter().position(|u| u == index).unwrap_or_else(|| {
+                    used.push(*index);
+                    used.len() - 1
+                })
+            })
+            .collect();
         let covariance = self.joint_covariance(&used);
-        let k = 2 * rows.len();
-        let mut h = DMatrix::zeros(k, states);
-        let mut noise = DMatrix::zeros(k, k);
-        let mut innovation = DVector::zeros(k);
-        for (r, (slot, line)) in rows.iter().enumerate() {
-            for i in 0..2 {
-                innovation[2 * r + i] = line.innovation[i];
-                for c in 0..9 {
-                    h[(2 * r + i, c)] = line.core[(i, c)];
-                }
-                for c in 0..3 {
-                    h[(2 * r + i, 9 + SURFACE_STATES * slot + c)] = line.surface[(i, c)];
-                }
-                for j in 0..2 {
-                    noise[(2 * r + i, 2 * r + j)] = line.noise[(i, j)];
-                }
-            }
+        let (innovation, noise) = innovation_and_noise(&rows);
+        let mut h = DMatrix::zeros(innovation.len(), covariance.ncols());
+        for (r, ((_, line), slot)) in rows.iter().zip(&slots).enumerate() {
+            h.view_mut((2 * r, 0), (2, 9)).copy_from(&line.core);
+            h.view_mut((2 * r, 9 + SURFACE_STATES * slot), (2, SURFACE_STATES))
+                .copy_from(&line.surface);
         }
         let pht = &covariance * h.transpose();
         let s = &h * &pht + noise;
@@ -373,13 +361,13 @@ impl Eskf {
         allowance: &SurfaceAllowance,
         unfaced: &[Vector3<f64>],
     ) -> Result<UpdateReport, UpdateError> {
-        let held = self.held_along(unfaced);
+        let held = Self::held_along(unfaced);
         let report = self.fuse_lines(lines, t_ref, allowance, held.as_ref())?;
         self.after_odometry_update(&report, [t_ref, t_ref], report.t);
         Ok(report)
     }
 
-    /// The projection onto the position along `unfaced`. No surface measures where the body
+    /// The projection onto the position's directions along `unfaced`. No surface measures where the body
     /// is along such a direction, yet the updates moved it there: along a bare corridor every
     /// epoch's lines on the walls and the floor corrected the position along it by decimetres
     /// (through its correlations with the attitude, the velocity and the surfaces), the
@@ -390,14 +378,8 @@ impl Eskf {
     /// holding the velocity, or the accelerometer bias with it, left the velocity a metre a
     /// second unsure within a minute, when the IMU's information through the floor's tilt was
     /// worth having.
-    fn held_along(&self, unfaced: &[Vector3<f64>]) -> Option<Covariance> {
-        if unfaced.is_empty() {
-            return None;
-        }
-        let mut held = Covariance::zeros();
-        let along: Matrix3<f64> = unfaced.iter().map(|u| u * u.transpose()).sum();
-        held.fixed_view_mut::<3, 3>(POS, POS).copy_from(&along);
-        Some(held)
+    fn held_along(unfaced: &[Vector3<f64>]) -> Option<Matrix3<f64>> {
+        (!unfaced.is_empty()).then(|| unfaced.iter().map(|u| u * u.transpose()).sum())
     }
 
     fn fuse_lines(
@@ -405,43 +387,55 @@ impl Eskf {
         lines: &[LineOnSurface],
         t_ref: f64,
         allowance: &SurfaceAllowance,
-        held: Option<&Covariance>,
+        held: Option<&Matrix3<f64>>,
     ) -> Result<UpdateReport, UpdateError> {
         let now = self.aligned_time()?;
         let epoch = self
             .epoch(t_ref)
             .ok_or(UpdateError::OutsideHistory { t_ref })?;
-        let k = 2 * lines.len();
-        let mut rows = JointRows {
-            innovation: DVector::zeros(k),
+        let rows = self.rows_of(lines, &epoch, allowance)?;
+        let (innovation, noise) = innovation_and_noise(&rows);
+        let k = innovation.len();
+        let mut joint = JointRows {
+            innovation,
             core: DMatrix::zeros(k, AUGMENTED),
             surfaces: DMatrix::zeros(k, self.map.states()),
-            noise: DMatrix::zeros(k, k),
+            noise,
         };
-        for (r, on) in lines.iter().enumerate() {
-            let index = self
-                .map
-                .index_of(on.surface)
-                .ok_or(UpdateError::NoSurface { id: on.surface })?;
-            let line = line_rows(&on.line, &self.map.surfaces()[index], &epoch, allowance);
-            for i in 0..2 {
-                let row = 2 * r + i;
-                rows.innovation[row] = line.innovation[i];
-                for (block, at) in [POS, VEL, ATT].into_iter().enumerate() {
-                    for c in 0..3 {
-                        rows.core[(row, at + c)] = line.core[(i, 3 * block + c)];
-                    }
-                }
-                for c in 0..3 {
-                    rows.surfaces[(row, SURFACE_STATES * index + c)] = line.surface[(i, c)];
-                }
-                for j in 0..2 {
-                    rows.noise[(row, 2 * r + j)] = line.noise[(i, j)];
-                }
+        for (r, (index, line)) in rows.iter().enumerate() {
+            for (block, at) in CORE.into_iter().enumerate() {
+                joint
+                    .core
+                    .view_mut((2 * r, at), (2, 3))
+                    .copy_from(&line.core.fixed_view::<2, 3>(0, 3 * block));
             }
+            joint
+                .surfaces
+                .view_mut((2 * r, SURFACE_STATES * index), (2, SURFACE_STATES))
+                .copy_from(&line.surface);
         }
         let threshold = self.map_gate(k);
-        self.fuse_joint(&rows, (k, threshold), held, UpdateKind::MapLines, now)
+        self.fuse_joint(&joint, (k, threshold), held, UpdateKind::MapLines, now)
+    }
+
+    /// Each line's rows against its surface, with the surface's place in the map.
+    fn rows_of(
+        &self,
+        lines: &[LineOnSurface],
+        epoch: &Epoch,
+        allowance: &SurfaceAllowance,
+    ) -> Result<Vec<(usize, LineRows)>, UpdateError> {
+        lines
+            .iter()
+            .map(|on| {
+                let index = self
+                    .map
+                    .index_of(on.surface)
+                    .ok_or(UpdateError::NoSurface { id: on.surface })?;
+                let surface = &self.map.surfaces()[index];
+                Ok((index, line_rows(&on.line, surface, epoch, allowance)))
+            })
+            .collect()
     }
 
     /// The gate's chi-square threshold for `dof` rows of lines, computed once per count.
@@ -491,6 +485,20 @@ impl Eskf {
         }
         c
     }
+}
+
+/// The lines' innovations and their block-diagonal noise, two rows a line in order.
+fn innovation_and_noise(rows: &[(usize, LineRows)]) -> (DVector<f64>, DMatrix<f64>) {
+    let k = 2 * rows.len();
+    let mut innovation = DVector::zeros(k);
+    let mut noise = DMatrix::zeros(k, k);
+    for (r, (_, line)) in rows.iter().enumerate() {
+        innovation.rows_mut(2 * r, 2).copy_from(&line.innovation);
+        noise
+            .view_mut((2 * r, 2 * r), (2, 2))
+            .copy_from(&line.noise);
+    }
+    (innovation, noise)
 }
 
 /// The error states `line_rows` measures, in its columns' order.
