@@ -300,6 +300,11 @@ fn single_line_planes_keep_the_open_room_observed() {
     );
 }
 
+/// Three axes' figures for a table cell, `decimals` each.
+fn axes(values: [f64; 3], decimals: usize) -> String {
+    values.map(|v| format!("{v:.decimals$}")).join(", ")
+}
+
 /// Per axis, the mean over `runs` of a figure of their accuracy.
 fn mean_axes(runs: &[Baseline], figure: fn(&AccuracyReport) -> [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|k| mean(runs.iter().map(|r| figure(&r.accuracy)[k])))
@@ -347,7 +352,7 @@ fn study(name: &str, rig: Rig, epoch_rate_hz: f64, single: SingleLines) {
         |count: usize, of: [usize; 4]| 100.0 * count as f64 / of.iter().sum::<usize>() as f64;
     let run = &runs[0].accuracy;
     println!(
-        "| {} | {epoch_rate_hz} Hz | {:.1} | {:.0} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} / {:.0} % | {:.3}, {:.3}, {:.3} | {:.2}, {:.2}, {:.2} | {:.1} ({:.1}-{:.1}) in {:.0} s |",
+        "| {} | {epoch_rate_hz} Hz | {:.1} | {:.0} % | {:.0} / {:.0} / {:.0} % | {:.0} / {:.0} / {:.0} / {:.0} % | {} | {} | {:.1} ({:.1}-{:.1}) in {:.0} s |",
         scenario.name,
         mean(runs.iter().map(|r| r.planes_per_epoch)),
         share(unobserved[1] + unobserved[2] + unobserved[3], unobserved),
@@ -358,12 +363,8 @@ fn study(name: &str, rig: Rig, epoch_rate_hz: f64, single: SingleLines) {
         share(unfused[1], fused),
         share(unfused[2], fused),
         share(unfused[3], fused),
-        velocity[0],
-        velocity[1],
-        velocity[2],
-        attitude[0],
-        attitude[1],
-        attitude[2],
+        axes(velocity, 3),
+        axes(attitude, 2),
         horizontal[horizontal.len() / 2],
         horizontal[0],
         horizontal[horizontal.len() - 1],
@@ -551,14 +552,10 @@ fn map_study(name: &str, rig: Rig, epoch_rate_hz: f64, method: OdometryMethod) {
     let nees = mean(runs.iter().map(|r| r.accuracy.nees_mean));
     let interval = runs[0].accuracy.nees_interval;
     println!(
-        "| {name} | {rig:?} | {epoch_rate_hz} Hz | {method:?} | {:.1} % | {:.4}, {:.4}, {:.4} | {:.2}, {:.2}, {:.2} | {:.2} ({:.2}) | {:.2} [{:.1}, {:.1}] | {:.2} |",
+        "| {name} | {rig:?} | {epoch_rate_hz} Hz | {method:?} | {:.1} % | {} | {} | {:.2} ({:.2}) | {:.2} [{:.1}, {:.1}] | {:.2} |",
         100.0 * mean(runs.iter().map(|r| r.unobserved_share)),
-        velocity[0],
-        velocity[1],
-        velocity[2],
-        attitude[0],
-        attitude[1],
-        attitude[2],
+        axes(velocity, 4),
+        axes(attitude, 2),
         drift[drift.len() / 2],
         drift[drift.len() - 1],
         nees,

@@ -6,14 +6,13 @@
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use super::plane_map::{plane_lines, Association, Standing, SurfaceRecord, Trust};
+use super::plane_map::{Association, Standing, SurfaceRecord, Trust};
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary};
 use super::Fusion;
 use crate::estimate::IntegrityStatus;
 use crate::filter::{FilterPhase, LineOnSurface, MapLine, Pose};
-use crate::integrity::blocks::{
-    test_surfaces, unfaced_directions, Block, MapIntegrity, StackedInnovation,
-};
+use crate::integrity::blocks::{test_surfaces, Block, MapIntegrity, StackedInnovation};
+use crate::least_squares::{directions_below, PARALLEL_TOLERANCE};
 use crate::odometry::planes::LineRef;
 use crate::odometry::EpochPlanes;
 use crate::sensors::Scan;
@@ -46,10 +45,7 @@ const LONE_CHECK_SIGMA_M: f64 = 0.02;
 /// Whether `normal` faces a direction none of `others` faces: more than a tenth of it lies
 /// where their normals together hold less than a twentieth of a surface's facing.
 fn faces_alone(normal: &Vector3<f64>, others: &[Vector3<f64>]) -> bool {
-    let gram = others
-        .iter()
-        .fold(nalgebra::Matrix3::zeros(), |sum, n| sum + n * n.transpose());
-    let eigen = gram.symmetric_eigen();
+    let eigen = gram(others).symmetric_eigen();
     let unfaced: f64 = (0..3)
         .filter(|&k| eigen.eigenvalues[k] < 0.05)
         .map(|k| normal.dot(&eigen.eigenvectors.column(k)).powi(2))
@@ -143,7 +139,7 @@ impl Fusion {
             .copied()
             .filter(|(id, _)| usable && !excluded.contains(id))
             .collect();
-        let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, tested.clone(), t_ref);
+        let (fused, unchecked) = self.leave_out_unchecked_lone(&lines, &tested, t_ref);
         let unfaced = self.unfaced(&fused);
         self.fuse_map_lines(&lines, &fused, &unfaced, pose, record);
         let fused_any = record.outcome == EpochOutcome::Fused;
@@ -326,8 +322,11 @@ impl Fusion {
         };
         let mut placed = Vec::new();
         for plane in &current.planes {
-            let members: Option<Vec<usize>> =
-                plane_lines(plane).into_iter().map(index_of).collect();
+            let members: Option<Vec<usize>> = plane
+                .distinct_lines()
+                .iter()
+                .map(|&at| index_of(at))
+                .collect();
             let Some(members) = members else { continue };
             if members.iter().any(|&k| lines[k].on != Association::Free) {
                 continue;
@@ -348,52 +347,49 @@ impl Fusion {
     fn leave_out_unchecked_lone(
         &mut self,
         lines: &[EpochLine],
-        tested: Vec<(u64, usize)>,
+        tested: &[(u64, usize)],
         t_ref: f64,
     ) -> (Vec<(u64, usize)>, Vec<u64>) {
         let epoch = self.filter.map_epoch(t_ref);
-        let normal_of = |id: u64| {
-            self.filter
-                .surfaces()
-                .iter()
-                .find(|s| s.id == id)
-                .map(|s| s.normal)
-        };
-        let mut ids: Vec<u64> = tested.iter().map(|&(id, _)| id).collect();
-        ids.dedup();
-        let normals: Vec<(u64, Vector3<f64>)> = ids
-            .iter()
-            .filter_map(|&id| Some((id, normal_of(id)?)))
-            .collect();
-        let mut unchecked = Vec::new();
-        for &(id, normal) in &normals {
-            let standing = self.plane_map.standing(id);
-            if standing == Some(Standing::Static) {
+        // Each surface tested (`tested` is by surface) with its first line and its normal.
+        let mut surfaces: Vec<(u64, usize, Vector3<f64>)> = Vec::new();
+        for &(id, k) in tested {
+            if surfaces.last().is_some_and(|s| s.0 == id) {
                 continue;
             }
-            let others: Vec<Vector3<f64>> = normals
-                .iter()
-                .filter(|(other, _)| *other != id)
-                .map(|(_, n)| *n)
-                .collect();
-            if !faces_alone(&normal, &others) {
-                continue;
-            }
-            let first = tested.iter().find(|(s, _)| *s == id).map(|&(_, k)| k);
-            let checked = standing == Some(Standing::Checked)
-                && first
-                    .zip(epoch.as_ref())
-                    .and_then(|(k, epoch)| {
-                        self.filter
-                            .offset_prediction_sigma(&lines[k].line, id, epoch)
-                    })
-                    .is_some_and(|sigma| sigma <= LONE_CHECK_SIGMA_M);
-            if !checked {
-                unchecked.push(id);
+            if let Some(surface) = self.filter.surfaces().iter().find(|s| s.id == id) {
+                surfaces.push((id, k, surface.normal));
             }
         }
+        let checked_by_prediction = |id: u64, k: usize| {
+            epoch
+                .as_ref()
+                .and_then(|epoch| {
+                    self.filter
+                        .offset_prediction_sigma(&lines[k].line, id, epoch)
+                })
+                .is_some_and(|sigma| sigma <= LONE_CHECK_SIGMA_M)
+        };
+        let unchecked: Vec<u64> = surfaces
+            .iter()
+            .filter(|&&(id, k, normal)| {
+                let others: Vec<Vector3<f64>> = surfaces
+                    .iter()
+                    .filter(|other| other.0 != id)
+                    .map(|other| other.2)
+                    .collect();
+                match self.plane_map.standing(id) {
+                    Some(Standing::Static) => false,
+                    _ if !faces_alone(&normal, &others) => false,
+                    Some(Standing::Checked) => !checked_by_prediction(id, k),
+                    _ => true,
+                }
+            })
+            .map(|&(id, ..)| id)
+            .collect();
         let kept = tested
-            .into_iter()
+            .iter()
+            .copied()
             .filter(|(id, _)| !unchecked.contains(id))
             .collect();
         (kept, unchecked)
@@ -408,13 +404,32 @@ impl Fusion {
             .filter(|s| fused.iter().any(|(id, _)| *id == s.id))
             .map(|s| s.normal)
             .collect();
-        unfaced_directions(&normals)
+        unfaced_by(&normals)
     }
+}
+
+/// The directions `normals` leave unobserved, judged on the normals as the pairs' solves judge
+/// their planes (`least_squares::PARALLEL_TOLERANCE`).
+fn unfaced_by(normals: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    directions_below(&gram(normals), PARALLEL_TOLERANCE)
+}
+
+/// `sum n n^T` of `normals`: how much of each direction they face together.
+fn gram(normals: &[Vector3<f64>]) -> nalgebra::Matrix3<f64> {
+    normals.iter().map(|n| n * n.transpose()).sum()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_corridor_leaves_its_length_unfaced() {
+        let walls = [Vector3::y(), -Vector3::y(), Vector3::z()];
+        let free = unfaced_by(&walls);
+        assert_eq!(free.len(), 1);
+        assert!(free[0].x.abs() > 0.999);
+    }
 
     #[test]
     fn a_surface_faces_alone_what_no_other_faces() {

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::filter::map_states::Surface;
 use crate::filter::{Eskf, MapLine, Pose, SurfaceAllowance, SurfacePlacement};
-use crate::odometry::planes::{LineRef, Plane};
+use crate::odometry::planes::Plane;
 use crate::odometry::{tangent_basis, MapConfig};
 
 /// A line that lies on a mapped surface by the association test, or why none.
@@ -157,6 +157,8 @@ impl Trust {
 pub struct SurfaceRecord {
     pub id: u64,
     pub origin: SurfaceOrigin,
+    /// What it must show to face a direction alone, as it stands now.
+    pub standing: Standing,
     /// Unit normal and distance (`normal . x = distance`, x NED).
     pub normal: [f64; 3],
     pub distance: f64,
@@ -419,6 +421,7 @@ impl PlaneMap {
                 Some(SurfaceRecord {
                     id: m.id,
                     origin: m.origin,
+                    standing: m.standing,
                     normal: surface.normal.into(),
                     distance: surface.distance,
                     sigma_normal_rad: sigmas.x.max(sigmas.y),
@@ -449,19 +452,10 @@ fn ends_in_navigation(line: &MapLine, pose: &Pose) -> [Vector3<f64>; 2] {
     [line.centroid - half, line.centroid + half].map(|end| pose.q.transform_vector(&end) + pose.p)
 }
 
-/// The lines of `plane` among the epoch's, by reference.
-pub(crate) fn plane_lines(plane: &Plane) -> Vec<LineRef> {
-    let mut refs = vec![plane.lines[0]];
-    if plane.lines[1] != plane.lines[0] {
-        refs.push(plane.lines[1]);
-    }
-    refs
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::odometry::planes::Building;
+    use crate::odometry::planes::{Building, LineRef};
     use crate::odometry::uncertainty::PlaneUncertainty;
 
     fn plane(normal: Vector3<f64>, crossing: bool, extent_m: f64, assumed: bool) -> Plane {
@@ -494,42 +488,29 @@ mod tests {
                 max_tilt_rad: 0.05,
             }),
         };
-        let wall = Vector3::x();
-        let floor = Vector3::z();
-        assert_eq!(
-            trust.standing(&plane(wall, true, 3.0, false)),
-            Standing::Static
-        );
-        assert_eq!(
-            trust.standing(&plane(floor, true, 0.5, false)),
-            Standing::Static
-        );
-        // A door, a person or a board: narrow. Parallel lines may join two surfaces.
-        assert_eq!(
-            trust.standing(&plane(wall, true, 0.8, false)),
-            Standing::Checked
-        );
-        assert_eq!(
-            trust.standing(&plane(wall, false, 3.0, false)),
-            Standing::Checked
-        );
-        // One line: a floor is level by the line's kind; a wall might be a floor line.
-        assert_eq!(
-            trust.standing(&plane(floor, false, 3.0, true)),
-            Standing::Checked
-        );
-        assert_eq!(
-            trust.standing(&plane(wall, false, 3.0, true)),
-            Standing::Corroborated
-        );
         let outdoors = Trust {
             building: None,
             ..trust
         };
-        assert_eq!(
-            outdoors.standing(&plane(floor, true, 0.5, false)),
-            Standing::Checked
-        );
+        let (wall, floor) = (Vector3::x(), Vector3::z());
+        // (judged by, normal, crossing, extent, normal assumed, standing)
+        let cases = [
+            (trust, wall, true, 3.0, false, Standing::Static),
+            (trust, floor, true, 0.5, false, Standing::Static),
+            // A door, a person or a board: narrow. Parallel lines may join two surfaces.
+            (trust, wall, true, 0.8, false, Standing::Checked),
+            (trust, wall, false, 3.0, false, Standing::Checked),
+            // One line: a floor is level by the line's kind; a wall might be a floor line.
+            (trust, floor, false, 3.0, true, Standing::Checked),
+            (trust, wall, false, 3.0, true, Standing::Corroborated),
+            (outdoors, floor, true, 0.5, false, Standing::Checked),
+        ];
+        for (k, (judge, normal, crossing, extent, assumed, standing)) in
+            cases.into_iter().enumerate()
+        {
+            let plane = plane(normal, crossing, extent, assumed);
+            assert_eq!(judge.standing(&plane), standing, "case {k}");
+        }
     }
 
     #[test]

@@ -12,7 +12,7 @@
 
 use std::ops::Range;
 
-use nalgebra::{DMatrix, DVector, Matrix3};
+use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
 use super::thresholds::Thresholds;
@@ -156,7 +156,7 @@ fn test_once(stack: &StackedInnovation, kept: &[&Block], thresholds: &Thresholds
         at += n;
         let n_b = s_inv.view((range.start, range.start), (n, n)).into_owned();
         let u_b = u.rows(range.start, n).into_owned();
-        let threshold = block_threshold(thresholds, n, kept.len());
+        let threshold = thresholds.per_plane(n, kept.len());
         let (statistic, mdb, n_b_inv) = match n_b.clone().cholesky() {
             Some(cholesky) => {
                 let weakest = n_b.symmetric_eigenvalues().min().max(0.0);
@@ -199,26 +199,6 @@ fn test_once(stack: &StackedInnovation, kept: &[&Block], thresholds: &Thresholds
         }),
         ..empty
     }
-}
-
-/// Threshold of a block's normalised residual with `rows` rows among `tests` blocks: half the
-/// scope's false-alarm budget shared equally, as for the paper's planes.
-fn block_threshold(thresholds: &Thresholds, rows: usize, tests: usize) -> f64 {
-    thresholds.per_plane(rows, tests)
-}
-
-/// How far the surfaces' normals spread over the directions: the directions (navigation axes)
-/// along which none of them faces, judged on the normals alone, as the displacement solve does.
-pub fn unfaced_directions(normals: &[nalgebra::Vector3<f64>]) -> Vec<nalgebra::Vector3<f64>> {
-    let gram = normals
-        .iter()
-        .fold(Matrix3::zeros(), |sum, n| sum + n * n.transpose());
-    let eigen = gram.symmetric_eigen();
-    let strongest = eigen.eigenvalues.max().max(f64::EPSILON);
-    (0..3)
-        .filter(|&k| eigen.eigenvalues[k] < 1e-3 * strongest.max(1.0))
-        .map(|k| eigen.eigenvectors.column(k).into_owned())
-        .collect()
 }
 
 #[cfg(test)]
@@ -275,17 +255,5 @@ mod tests {
         assert!(report.excluded.is_empty() && report.usable());
         assert_eq!(report.tests.len(), 3);
         assert!(!verdict([0.05, 0.3, -0.2]).usable());
-    }
-
-    #[test]
-    fn a_corridor_leaves_its_length_unfaced() {
-        let walls = [
-            nalgebra::Vector3::y(),
-            -nalgebra::Vector3::y(),
-            nalgebra::Vector3::z(),
-        ];
-        let free = unfaced_directions(&walls);
-        assert_eq!(free.len(), 1);
-        assert!(free[0].x.abs() > 0.999);
     }
 }

@@ -224,6 +224,15 @@ impl Plane {
             normal_assumed: true,
         }
     }
+
+    /// Its lines, once each: a plane through one line names it twice.
+    pub(crate) fn distinct_lines(&self) -> &[LineRef] {
+        if self.lines[0] == self.lines[1] {
+            &self.lines[..1]
+        } else {
+            &self.lines
+        }
+    }
 }
 
 /// The lines of one scan with the beams they index and the scanner's ranging sigma.
