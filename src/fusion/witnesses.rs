@@ -448,7 +448,7 @@ struct Witness {
 /// 4 mm sigma, the filter learnt an accelerometer bias from it, and sent a vertical velocity
 /// 1.2 m/s off at a 1.6 cm/s sigma as usable. Such a match must then be checked as any other
 /// lone plane is (`Check`).
-const SURE_MATCH_SIGMA_M: f64 = 0.1;
+pub(super) const SURE_MATCH_SIGMA_M: f64 = 0.1;
 
 /// For each plane not taken for static, the directions the others leave unobserved that it
 /// observes, judged against the whole geometry (`sum` of `geometry` over the normals) as the
