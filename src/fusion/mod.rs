@@ -31,6 +31,11 @@ use crate::filter::{Eskf, FilterPhase, ImuOutcome};
 use crate::integrity::IntegrityMonitor;
 use crate::odometry::{EpochPlanes, Odometer, OdometryMethod};
 use crate::sensors::{ImuSample, Scan, ScannerSetup};
+use nalgebra::Vector3;
+
+/// Two epochs' unobserved displacement directions are the same one within about 25 degrees:
+/// the body turns little in an epoch, and the pairs' free directions follow the walls.
+const STILL_UNOBSERVED_COSINE: f64 = 0.9;
 
 /// A source whose staleness the daemon's watchdog reports.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -96,6 +101,10 @@ pub struct Fusion {
     /// Whether the filter was converged at the last epoch: losing it is a restart, which
     /// forgets the provisional directions with the state.
     filter_converged: bool,
+    /// The directions the last pairs' epoch left unobserved, if it fused.
+    last_fused_unobserved: Option<Vec<[f64; 3]>>,
+    /// Whether the last pairs' epoch fused and observed nothing the one before left unobserved.
+    observability_settled: bool,
     propagated: u64,
     counters: FusionCounters,
 }
@@ -124,6 +133,8 @@ impl Fusion {
             integrity: None,
             provisional: witnesses::Provisional::default(),
             filter_converged: false,
+            last_fused_unobserved: None,
+            observability_settled: false,
             propagated: 0,
             counters: FusionCounters::default(),
         })
@@ -190,6 +201,7 @@ impl Fusion {
             self.run_map_epoch(&scans, t_ref)
         } else {
             let record = self.run_epoch(&scans, t_ref);
+            self.follow_observability(&record);
             if method == OdometryMethod::Map && self.ready_for_the_map() {
                 self.seed_map(t_ref);
             }
@@ -211,12 +223,38 @@ impl Fusion {
     /// (`witnesses::SURE_MATCH_SIGMA_M`) along every axis: surfaces placed under a looser one
     /// are placed loosely, and in `random-room-9` started 31.2 s in, the map placed at 0.6 m/s
     /// of vertical sigma could measure nothing vertical for the rest of the run.
+    /// Last, the pairs' epoch must not be the first to observe a direction
+    /// (`follow_observability`).
     fn ready_for_the_map(&self) -> bool {
         let velocity = self.filter.covariance().fixed_view::<3, 3>(VEL, VEL);
         let largest_sigma = velocity.symmetric_eigenvalues().max().max(0.0).sqrt();
         self.filter.converged()
             && self.provisional.is_empty()
+            && self.observability_settled
             && largest_sigma * self.config.epoch_interval_s() <= witnesses::SURE_MATCH_SIGMA_M
+    }
+
+    /// Follows whether the pairs' last epoch observed a direction the one before left
+    /// unobserved. Once a direction is first observed, the velocity along it is corrected but
+    /// what drives its error (the tilt, the accelerometer's bias) is not yet; handed over then,
+    /// the map, which measures positions, took that error for known: `hallway-flight` started
+    /// 31.2 s in handed over as its end wall first came into view and sent a velocity 0.1 m/s
+    /// off at 1 cm/s sigma. A direction that stays unobserved is the map's to hold
+    /// (`Eskf::held_along`), so a bare corridor still hands over.
+    fn follow_observability(&mut self, record: &EpochRecord) {
+        let fused = record.outcome == EpochOutcome::Fused;
+        let now = &record.unobservable_displacement;
+        let still_unobserved = |before: &[f64; 3]| {
+            let before = Vector3::from(*before);
+            now.iter()
+                .any(|d| Vector3::from(*d).dot(&before).abs() >= STILL_UNOBSERVED_COSINE)
+        };
+        self.observability_settled = fused
+            && self
+                .last_fused_unobserved
+                .as_ref()
+                .is_some_and(|before| before.iter().all(still_unobserved));
+        self.last_fused_unobserved = fused.then(|| now.clone());
     }
 
     /// How many surfaces the plane map holds (`odometry.method = "map"`).
