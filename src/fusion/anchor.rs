@@ -43,15 +43,23 @@ const SOLE_ANCHOR_SIGMA_M: f64 = 0.01;
 const MIN_ANCHOR_SIGMA_M: f64 = 0.01;
 const MAX_ANCHOR_SIGMA_M: f64 = 0.1;
 
-/// Largest turn over an epoch (rad) across which an unobservable direction is anchored. The
-/// anchor holds one direction of body i, but over a sharp turn the motion along the free
-/// direction sweeps through the observed ones, and the solve hands the filter the prior's own
-/// (possibly wrong) velocity as if the planes had measured it. Seen at the corner of
-/// hallway-flight started in motion (60 degrees in an epoch, a 1.8 m/s along-track error of the
-/// start): the error stayed while its sigma fell to 0.27 m/s, and the 20 starts sent only 94 %
-/// of their valid messages inside 3 sigma. 20 degrees is more than any epoch of the hovers and
-/// walks turns.
-const MAX_ANCHORED_TURN_RAD: f64 = 0.35;
+/// Largest turn rate (rad/s) across which an unobservable direction is anchored. The anchor
+/// holds one direction of body i, but over a sharp turn the motion along the free direction
+/// sweeps through the observed ones, and the solve hands the filter the prior's own (possibly
+/// wrong) velocity as if the planes had measured it. Seen at the corner of hallway-flight
+/// started in motion (60 degrees in an epoch, a 1.8 m/s along-track error of the start): the
+/// error stayed while its sigma fell to 0.27 m/s, and the 20 starts sent only 94 % of their
+/// valid messages inside 3 sigma. 20 degrees a second is more than the hovers and walks turn.
+/// It is a rate, not a turn per epoch: at 10 Hz the corner is 6 degrees an epoch, each epoch
+/// anchored, and the same starts sent 2 m/s of along-track error at quality 50-67, 60 sigma off
+/// (`anchored_turn_limit`).
+const MAX_ANCHORED_TURN_RATE_RADPS: f64 = 0.35;
+
+/// The largest turn across an epoch of `interval_s` that is anchored: the rate's, and never
+/// more than a second of it, so that an epoch slower than 1 Hz anchors no more than one at 1 Hz.
+fn anchored_turn_limit(interval_s: f64) -> f64 {
+    MAX_ANCHORED_TURN_RATE_RADPS * interval_s.abs().min(1.0)
+}
 
 /// An epoch's planes and matches with one pseudo-plane per unobservable direction appended.
 pub(super) struct Anchored {
@@ -83,7 +91,7 @@ impl Anchored {
         if unobservable.is_empty()
             || unobservable.len() >= 3
             || epoch.matches.is_empty()
-            || prior.rotation.angle() > MAX_ANCHORED_TURN_RAD
+            || prior.rotation.angle() > anchored_turn_limit(current.t_ref - previous.t_ref)
         {
             return None;
         }
@@ -254,19 +262,21 @@ mod tests {
         sigma_rho: f64,
         prior_sigma_m: f64,
     ) -> Option<Anchored> {
-        anchored_turning(surfaces, sigma_rho, prior_sigma_m, 0.0)
+        anchored_turning(surfaces, sigma_rho, prior_sigma_m, 0.0, 1.0)
     }
 
-    /// As `anchored`, with a prior that also turns `turn_rad` about the vertical (the planes
-    /// themselves are given in the body axes of each epoch, unturned: only the prior matters).
+    /// As `anchored`, with a prior that also turns `turn_rad` about the vertical over an epoch
+    /// of `interval_s` (the planes themselves are given in the body axes of each epoch,
+    /// unturned: only the prior matters).
     fn anchored_turning(
         surfaces: &[([f64; 3], f64)],
         sigma_rho: f64,
         prior_sigma_m: f64,
         turn_rad: f64,
+        interval_s: f64,
     ) -> Option<Anchored> {
         let sigmas = vec![sigma_rho; surfaces.len()];
-        anchored_with_sigmas(surfaces, &sigmas, prior_sigma_m, turn_rad)
+        anchored_with_sigmas(surfaces, &sigmas, prior_sigma_m, turn_rad, interval_s)
     }
 
     /// As `anchored_turning`, each surface measured to its own sigma.
@@ -275,6 +285,7 @@ mod tests {
         sigmas: &[f64],
         prior_sigma_m: f64,
         turn_rad: f64,
+        interval_s: f64,
     ) -> Option<Anchored> {
         let epoch_planes = |shift: &Vector3<f64>, t_ref: f64| EpochPlanes {
             t_ref,
@@ -290,7 +301,7 @@ mod tests {
         };
         let (previous, current) = (
             epoch_planes(&Vector3::zeros(), 0.0),
-            epoch_planes(&TRUTH, 1.0),
+            epoch_planes(&TRUTH, interval_s),
         );
         let matches: Vec<PlaneMatch> = (0..surfaces.len())
             .map(|k| PlaneMatch {
@@ -352,7 +363,7 @@ mod tests {
 
     #[test]
     fn a_sole_anchor_is_accepted_beside_a_floor_measured_to_a_tenth_of_a_millimetre() {
-        let anchored = anchored_with_sigmas(&WALLS_AND_FLOOR, &[0.001, 0.001, 1e-4], 0.3, 0.0);
+        let anchored = anchored_with_sigmas(&WALLS_AND_FLOOR, &[0.001, 0.001, 1e-4], 0.3, 0.0, 1.0);
         let solution = anchored.unwrap().solve(&[]).unwrap();
         assert!((solution.x.y - TRUTH.y).abs() < 1e-9);
         assert!((solution.x.z - TRUTH.z).abs() < 1e-9);
@@ -368,7 +379,8 @@ mod tests {
             WALLS_AND_FLOOR[1],
             ([-1.0, 0.0, 0.0], 2.5),
         ];
-        let anchored = anchored_with_sigmas(&surfaces, &[0.001, 0.001, 0.03], 0.6, 0.0).unwrap();
+        let anchored =
+            anchored_with_sigmas(&surfaces, &[0.001, 0.001, 0.03], 0.6, 0.0, 1.0).unwrap();
         assert_eq!(anchored.unobservable.len(), 1);
         assert!(anchored.unobservable[0].z.abs() > 0.999);
         let solution = anchored.solve(&[]).unwrap();
@@ -388,7 +400,17 @@ mod tests {
 
     #[test]
     fn a_free_direction_is_not_anchored_across_a_sharp_turn() {
-        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.3).is_some());
-        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.4).is_none());
+        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.3, 1.0).is_some());
+        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.4, 1.0).is_none());
+    }
+
+    #[test]
+    fn at_10_hz_a_turn_is_judged_by_its_rate_not_by_each_epoch() {
+        // A corner taken at 60 degrees a second: 6 degrees an epoch at 10 Hz.
+        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.105, 0.1).is_none());
+        // The hovers' and walks' turns, under 20 degrees a second, stay anchored.
+        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.03, 0.1).is_some());
+        // Slower than 1 Hz, an epoch anchors no more of a turn than one at 1 Hz.
+        assert!(anchored_turning(&WALLS_AND_FLOOR, 0.005, 0.3, 0.4, 2.0).is_none());
     }
 }
