@@ -103,8 +103,6 @@ pub struct Fusion {
     filter_converged: bool,
     /// The directions the last pairs' epoch left unobserved, if it fused.
     last_fused_unobserved: Option<Vec<[f64; 3]>>,
-    /// Whether the last pairs' epoch fused and observed nothing the one before left unobserved.
-    observability_settled: bool,
     propagated: u64,
     counters: FusionCounters,
 }
@@ -134,7 +132,6 @@ impl Fusion {
             provisional: witnesses::Provisional::default(),
             filter_converged: false,
             last_fused_unobserved: None,
-            observability_settled: false,
             propagated: 0,
             counters: FusionCounters::default(),
         })
@@ -201,16 +198,17 @@ impl Fusion {
             self.run_map_epoch(&scans, t_ref)
         } else {
             let record = self.run_epoch(&scans, t_ref);
-            self.follow_observability(&record);
-            if method == OdometryMethod::Map && self.ready_for_the_map() {
+            let settled = self.observability_settled(&record);
+            if method == OdometryMethod::Map && settled && self.ready_for_the_map() {
                 self.seed_map(t_ref);
             }
             record
         })
     }
 
-    /// Whether the plane map measures this epoch: it holds surfaces and the filter has not
-    /// restarted (a restart clears the map, and the pairs start again).
+    /// Whether the plane map measures this epoch: the filter has converged and the map holds
+    /// surfaces (a restart clears them, as forgetting them all empties it: the pairs then start
+    /// again).
     fn on_the_map(&self) -> bool {
         self.filter.converged() && !self.filter.surfaces().is_empty()
     }
@@ -223,25 +221,25 @@ impl Fusion {
     /// (`witnesses::SURE_MATCH_SIGMA_M`) along every axis: surfaces placed under a looser one
     /// are placed loosely, and in `random-room-9` started 31.2 s in, the map placed at 0.6 m/s
     /// of vertical sigma could measure nothing vertical for the rest of the run.
-    /// Last, the pairs' epoch must not be the first to observe a direction
-    /// (`follow_observability`).
+    /// The caller also asks that the pairs' epoch was not the first to observe a direction
+    /// (`observability_settled`).
     fn ready_for_the_map(&self) -> bool {
-        let velocity = self.filter.covariance().fixed_view::<3, 3>(VEL, VEL);
-        let largest_sigma = velocity.symmetric_eigenvalues().max().max(0.0).sqrt();
-        self.filter.converged()
-            && self.provisional.is_empty()
-            && self.observability_settled
-            && largest_sigma * self.config.epoch_interval_s() <= witnesses::SURE_MATCH_SIGMA_M
+        let surely_placed = || {
+            let velocity = self.filter.covariance().fixed_view::<3, 3>(VEL, VEL);
+            let largest_sigma = velocity.symmetric_eigenvalues().max().max(0.0).sqrt();
+            largest_sigma * self.config.epoch_interval_s() <= witnesses::SURE_MATCH_SIGMA_M
+        };
+        self.filter.converged() && self.provisional.is_empty() && surely_placed()
     }
 
-    /// Follows whether the pairs' last epoch observed a direction the one before left
-    /// unobserved. Once a direction is first observed, the velocity along it is corrected but
+    /// Whether the pairs' epoch `record` fused and observed no direction the fused epoch before
+    /// it left unobserved; remembers what it left unobserved for the next. Once a direction is first observed, the velocity along it is corrected but
     /// what drives its error (the tilt, the accelerometer's bias) is not yet; handed over then,
     /// the map, which measures positions, took that error for known: `hallway-flight` started
     /// 31.2 s in handed over as its end wall first came into view and sent a velocity 0.1 m/s
     /// off at 1 cm/s sigma. A direction that stays unobserved is the map's to hold
     /// (`Eskf::held_along`), so a bare corridor still hands over.
-    fn follow_observability(&mut self, record: &EpochRecord) {
+    fn observability_settled(&mut self, record: &EpochRecord) -> bool {
         let fused = record.outcome == EpochOutcome::Fused;
         let now = &record.unobservable_displacement;
         let still_unobserved = |before: &[f64; 3]| {
@@ -249,12 +247,13 @@ impl Fusion {
             now.iter()
                 .any(|d| Vector3::from(*d).dot(&before).abs() >= STILL_UNOBSERVED_COSINE)
         };
-        self.observability_settled = fused
+        let settled = fused
             && self
                 .last_fused_unobserved
                 .as_ref()
                 .is_some_and(|before| before.iter().all(still_unobserved));
         self.last_fused_unobserved = fused.then(|| now.clone());
+        settled
     }
 
     /// How many surfaces the plane map holds (`odometry.method = "map"`).
