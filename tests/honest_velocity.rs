@@ -70,9 +70,9 @@ impl Trial {
         self
     }
 
-    /// The same run measured on the plane map (`odometry.method = "map"`).
-    fn on_the_map(mut self) -> Self {
-        self.method = OdometryMethod::Map;
+    /// The same run measured by `method` (`odometry.method`).
+    fn measured_by(mut self, method: OdometryMethod) -> Self {
+        self.method = method;
         self
     }
 
@@ -292,9 +292,10 @@ fn starts_in_motion(name: &str, runs: u64, window_s: f64, length_s: f64) -> Vec<
 /// Four two-minute runs of the bare corridor by `method`: usable, and honest along it.
 fn assert_the_corridor_is_honest(method: OdometryMethod) -> Verdict {
     let trials: Vec<Trial> = (0..4)
-        .map(|k| Trial {
-            method,
-            ..Trial::new("bare-corridor", 100 + k, 0.0).until(120.0)
+        .map(|k| {
+            Trial::new("bare-corridor", 100 + k, 0.0)
+                .until(120.0)
+                .measured_by(method)
         })
         .collect();
     let runs = fly_all(&trials);
@@ -338,7 +339,7 @@ fn on_the_plane_map_a_flight_started_in_its_hover_is_usable_within_10_s_and_hone
 fn assert_the_flight_started_in_its_hover_is_usable(method: OdometryMethod) {
     let trials: Vec<Trial> = starts_in_motion("hallway-flight", 4, 9.0, 20.0)
         .into_iter()
-        .map(|trial| Trial { method, ..trial })
+        .map(|trial| trial.measured_by(method))
         .collect();
     let runs = fly_all(&trials);
     for (trial, run) in trials.iter().zip(&runs) {
@@ -374,7 +375,7 @@ fn an_open_room_started_in_its_hover_is_usable_within_10_s_and_honest() {
 fn started_late_in_a_random_room_the_plane_map_takes_over_usable_and_honest() {
     for (seed, start_s) in [(5, 21.8), (9, 31.2)] {
         let name = format!("random-room-{seed}");
-        let run = fly(&Trial::new(&name, seed, start_s).on_the_map());
+        let run = fly(&Trial::new(&name, seed, start_s).measured_by(OdometryMethod::Map));
         let verdict = Verdict::of(&run);
         assert!(
             verdict.valid * 2 >= verdict.messages,
@@ -394,7 +395,7 @@ fn on_the_plane_map_a_flight_started_before_its_end_wall_comes_into_view_is_hone
     let start_s = 31.16;
     let trial = Trial::new("hallway-flight", 108, start_s)
         .until(start_s + 10.0)
-        .on_the_map();
+        .measured_by(OdometryMethod::Map);
     let verdict = Verdict::of(&fly(&trial));
     assert!(
         verdict
@@ -528,7 +529,10 @@ fn study_flight_started_in_motion_20_runs() {
 fn study_plane_map_honesty_20_runs() {
     let mut failed = Vec::new();
     for (label, trials) in honesty_studies() {
-        let trials: Vec<Trial> = trials.into_iter().map(Trial::on_the_map).collect();
+        let trials: Vec<Trial> = trials
+            .into_iter()
+            .map(|trial| trial.measured_by(OdometryMethod::Map))
+            .collect();
         let (verdict, first) = study(&format!("{label} on the plane map, 20 runs"), &trials);
         let usable = first
             .iter()
@@ -557,7 +561,7 @@ fn study_plane_map_hover_started_in_motion_20_runs() {
 fn hover_started_in_motion(method: OdometryMethod) {
     let trials: Vec<Trial> = starts_in_motion("hallway-hover", 20, 400.0, 60.0)
         .into_iter()
-        .map(|trial| Trial { method, ..trial })
+        .map(|trial| trial.measured_by(method))
         .collect();
     let label = format!("hallway-hover started in motion, {method:?}, 20 runs");
     let (verdict, first) = study(&label, &trials);
@@ -584,10 +588,9 @@ fn outages_in_flight(method: OdometryMethod) {
     let trials: Vec<Trial> = (0..20)
         .map(|k| {
             let from_s = 45.0 + 10.0 * (k as f64 * 0.618_034).fract();
-            let mut trial = Trial {
-                method,
-                ..Trial::new("hallway-hover", 100 + k, 0.0).until(from_s + 40.0)
-            };
+            let mut trial = Trial::new("hallway-hover", 100 + k, 0.0)
+                .until(from_s + 40.0)
+                .measured_by(method);
             trial.outage = Some(Outage {
                 from_s,
                 to_s: from_s + 2.0 + 8.0 * (k as f64 * 0.414_214).fract(),
@@ -639,10 +642,7 @@ fn random_rooms(method: OdometryMethod) {
             } else {
                 20.0 + 20.0 * (seed as f64 * 0.618_034).fract()
             };
-            Trial {
-                method,
-                ..Trial::new(&format!("random-room-{seed}"), seed, start_s)
-            }
+            Trial::new(&format!("random-room-{seed}"), seed, start_s).measured_by(method)
         })
         .collect();
     let runs = fly_all(&trials);
