@@ -516,6 +516,7 @@ pub(super) fn planes_record(planes: &EpochPlanes) -> EpochRecord {
         readings: planes.readings,
         dropped: planes.dropped,
         lines: planes.lines,
+        range_sigma_m: planes.range_sigma_m,
         planes_per_scanner: [on_scanner(0), on_scanner(1)],
         planes: planes.planes.len(),
         plane_geometry: planes.planes.iter().map(PlaneGeometry::from).collect(),

@@ -107,6 +107,9 @@ pub struct EpochRecord {
     pub dropped: [DroppedReadings; 2],
     /// Lines extracted per scanner.
     pub lines: [usize; 2],
+    /// The ranging sigma each scanner's lines were weighed with, m: `range_sigma_m`, or what
+    /// the lines showed if the scanner ranged worse (`odometry/ranging_noise.rs`).
+    pub range_sigma_m: [f64; 2],
     /// Planes built with a line of each scanner (a plane may count for both).
     pub planes_per_scanner: [usize; 2],
     pub planes: usize,

@@ -37,6 +37,9 @@ pub struct Segment {
     pub abscissa_spread: f64,
     /// Centred scatter of the body-frame points, sum of (p - p0)(p - p0)^T.
     pub scatter: Matrix3<f64>,
+    /// Sum of the squared distances, along each beam, from its reading to the fitted line:
+    /// the ranging errors, with `points() - 2` degrees of freedom (`ranging_noise`).
+    pub range_residual_ss: f64,
 }
 
 impl Segment {
@@ -320,8 +323,10 @@ fn fit_segment(beams: &[Beam], a: usize, b: usize, parameters: &LineParameters) 
     let (mut low, mut high) = (f64::INFINITY, f64::NEG_INFINITY);
     let (mut sum, mut sum_of_squares) = (0.0, 0.0);
     let mut moment = Vector3::zeros();
+    let mut range_residual_ss = 0.0;
     for beam in points {
         let on_line = where_beam_meets_line(beam, &centroid_2d, &normal_2d);
+        range_residual_ss += (on_line - beam.planar).norm_squared();
         let t = direction_2d.dot(&(on_line - centroid_2d));
         low = low.min(t);
         high = high.max(t);
@@ -344,6 +349,7 @@ fn fit_segment(beams: &[Beam], a: usize, b: usize, parameters: &LineParameters) 
         direction: moment.try_normalize(0.0)?,
         abscissa_spread,
         scatter,
+        range_residual_ss,
     })
 }
 

@@ -18,6 +18,7 @@ pub mod map_config;
 pub(crate) mod map_lines;
 pub(crate) mod matching;
 pub mod planes;
+mod ranging_noise;
 pub(crate) mod rotation;
 #[cfg(test)]
 mod single_line_fixtures;
@@ -36,6 +37,7 @@ use map_lines::ScanOfLines;
 use matching::{MatchGates, Matcher, PlaneMatch};
 use nalgebra::{Matrix3, Matrix3x2, UnitQuaternion, Vector3};
 use planes::{Building, Plane, PlaneExtractor, PlaneParameters, ScanLines, Surfaces};
+use ranging_noise::RangingNoise;
 use rotation::{solve_rotation, RotationParameters};
 use serde::{Deserialize, Serialize};
 use wall_lines::{wall_planes, WallLineParameters};
@@ -389,6 +391,9 @@ pub struct EpochPlanes {
     pub readings: [usize; 2],
     /// Lines found per scanner.
     pub lines: [usize; 2],
+    /// The ranging sigma each scanner's lines were weighed with, m: the configured one, or
+    /// what the lines showed if worse.
+    pub range_sigma_m: [f64; 2],
     /// The planes the lines make without the admission test of
     /// `Odometer::extract_admitted_into`, when it refused any (empty otherwise: they are
     /// `planes`). With `planes`, what a later epoch's planes are confirmed against.
@@ -510,6 +515,8 @@ pub struct Odometer {
     /// Planes through one line that the admission test refused, reused between epochs.
     refused_single_line: Vec<Plane>,
     matcher: Matcher,
+    /// What each scanner's lines show of its ranging noise (`ranging_noise`).
+    ranging_noise: [RangingNoise; 2],
 }
 
 impl Odometer {
@@ -538,6 +545,7 @@ impl Odometer {
             paired: [Vec::new(), Vec::new()],
             refused_single_line: Vec::new(),
             matcher: Matcher::default(),
+            ranging_noise: Default::default(),
         })
     }
 
@@ -560,10 +568,12 @@ impl Odometer {
         }
     }
 
+    /// Scanner `scanner`'s ranging sigma: as configured, or what its lines show if worse.
     fn range_sigma(&self, scanner: usize) -> f64 {
-        self.scanners[scanner]
+        let configured = self.scanners[scanner]
             .range_sigma_m
-            .unwrap_or(self.config.range_sigma_m)
+            .unwrap_or(self.config.range_sigma_m);
+        self.ranging_noise[scanner].sigma_at_least(configured)
     }
 
     /// Planes of one epoch: `scans[k]` is scanner k's scan; `pose_at(t)` is the body pose at
@@ -632,9 +642,11 @@ impl Odometer {
             let parameters = self.config.line_parameters(self.range_sigma(k));
             self.lines
                 .extract(&self.beams[k], &parameters, &mut self.segments[k]);
+            self.ranging_noise[k].observe(&self.segments[k]);
             out.lines[k] = self.segments[k].len();
         }
         let sigmas = [self.range_sigma(0), self.range_sigma(1)];
+        out.range_sigma_m = sigmas;
         let scan_lines = [0, 1].map(|k| ScanLines {
             segments: &self.segments[k],
             beams: &self.beams[k],

@@ -19,6 +19,7 @@ pub(crate) fn line(centroid: Vector3<f64>, direction: Vector3<f64>, length: f64)
         direction: direction.normalize(),
         abscissa_spread: 10.0,
         scatter: Matrix3::zeros(),
+        range_residual_ss: 0.0,
     }
 }
 
