@@ -13,6 +13,7 @@
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::config::FilterConfig;
+use super::imu_noise::WhiteNoise;
 use super::state::{
     Covariance, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, ERROR_STATES, GYRO_BIAS, GYRO_SCALE, VEL,
 };
@@ -160,10 +161,28 @@ pub(crate) struct ProcessNoise {
 
 impl ProcessNoise {
     pub(crate) fn new(config: &FilterConfig) -> Self {
+        Self::with_white(
+            config,
+            config.gyro_noise_density,
+            config.accel_noise_density,
+        )
+    }
+
+    /// The configured process noise, with the white noise the IMU was `measured` to have
+    /// where it is worse (`imu_noise`).
+    pub(crate) fn at_least_measured(config: &FilterConfig, measured: &WhiteNoise) -> Self {
+        Self::with_white(
+            config,
+            measured.gyro_density.max(config.gyro_noise_density),
+            measured.accel_density.max(config.accel_noise_density),
+        )
+    }
+
+    fn with_white(config: &FilterConfig, gyro_density: f64, accel_density: f64) -> Self {
         Self {
             blocks: [
-                (VEL, config.accel_noise_density.powi(2)),
-                (ATT, config.gyro_noise_density.powi(2)),
+                (VEL, accel_density.powi(2)),
+                (ATT, gyro_density.powi(2)),
                 (GYRO_BIAS, config.gyro_bias_random_walk.powi(2)),
                 (ACCEL_BIAS, config.accel_bias_random_walk.powi(2)),
                 (GYRO_SCALE, config.gyro_scale_random_walk.powi(2)),

@@ -12,6 +12,7 @@ use super::config::FilterConfig;
 use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
+use super::imu_noise::ImuNoiseMeter;
 use super::map_states::{JointRows, MapStates};
 use super::relative_pose::CarriedNoise;
 use super::state::{
@@ -189,6 +190,9 @@ pub struct Eskf {
     imu_to_body: UnitQuaternion<f64>,
     gravity: Vector3<f64>,
     noise: ProcessNoise,
+    /// Measures the IMU's white noise, which the process noise takes where it is worse than
+    /// configured.
+    imu_noise: ImuNoiseMeter,
     gate: GateThresholds,
     /// The gate of updates that fuse an assumption rather than a measurement
     /// (`update_level_directions`).
@@ -294,6 +298,7 @@ impl Eskf {
             imu_to_body: config.imu_to_body(),
             gravity: Vector3::new(0.0, 0.0, config.gravity_mps2),
             noise: ProcessNoise::new(&config),
+            imu_noise: ImuNoiseMeter::default(),
             gate: GateThresholds::new(config.gate_probability),
             assumption_gate: GateThresholds::new(assumption_gate_probability(
                 config.gate_probability,
@@ -388,7 +393,11 @@ impl Eskf {
         });
         self.t = Some(t);
         if since_last > self.config.max_imu_gap_s {
+            self.imu_noise.restart();
             return self.bridge_gap(t, since_last);
+        }
+        if let Some(measured) = self.imu_noise.observe(sample, interval) {
+            self.noise = ProcessNoise::at_least_measured(&self.config, &measured);
         }
         match self.phase {
             FilterPhase::Aligning => self.align(t, sample, interval),

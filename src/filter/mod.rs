@@ -20,6 +20,7 @@ pub(crate) mod covariance;
 pub(crate) mod divergence;
 pub(crate) mod eskf;
 pub(crate) mod history;
+pub(crate) mod imu_noise;
 pub(crate) mod map_states;
 pub(crate) mod relative_pose;
 pub mod state;
