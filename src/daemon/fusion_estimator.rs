@@ -26,6 +26,8 @@ pub struct FusionEstimator {
     /// Geometries the fusion refused (already validated at start-up, so a device reporting
     /// nonsense in its PP reply).
     pub refused_geometries: u64,
+    /// Scanners already named in a WARN for ranging worse than configured.
+    named_noisier: [bool; 2],
 }
 
 impl FusionEstimator {
@@ -49,6 +51,7 @@ impl FusionEstimator {
             fusion: None,
             waiting_for_geometry: 0,
             refused_geometries: 0,
+            named_noisier: [false; 2],
         }
     }
 
@@ -110,13 +113,22 @@ impl Estimator for FusionEstimator {
     }
 
     fn scan(&mut self, scan: Scan) -> Option<EpochRecord> {
-        match self.fusion.as_mut() {
-            Some(fusion) => fusion.push_scan(scan),
-            None => {
-                self.waiting_for_geometry += 1;
-                None
-            }
+        let Some(fusion) = self.fusion.as_mut() else {
+            self.waiting_for_geometry += 1;
+            return None;
+        };
+        let record = fusion.push_scan(scan)?;
+        let configured = self.mounts.map(|m| m.range_sigma_m);
+        for k in newly_noisier(&mut self.named_noisier, configured, record.range_sigma_m) {
+            let (measured, configured) = (record.range_sigma_m[k], configured[k]);
+            tracing::warn!(
+                scanner = k,
+                "scanner {k}'s ranges scatter {measured:.3} m about its lines, more than its \
+                 range_sigma_m = {configured}: its planes are weighed by the scatter; set \
+                 range_sigma_m = {measured:.3} if that is its noise, or clean its window"
+            );
         }
+        Some(record)
     }
 
     fn epoch_estimate(&self) -> Option<Estimate> {
@@ -164,6 +176,21 @@ impl Estimator for FusionEstimator {
     }
 }
 
+/// A scanner whose lines scatter this many times its configured sigma is named in a WARN.
+const NOISIER_RATIO: f64 = 1.5;
+
+/// The scanners whose ranging sigma `used` is first seen `NOISIER_RATIO` times `configured`
+/// or more; `named` remembers them, so that each is named once.
+fn newly_noisier(named: &mut [bool; 2], configured: [f64; 2], used: [f64; 2]) -> Vec<usize> {
+    (0..2)
+        .filter(|&k| {
+            let first = !named[k] && used[k] >= NOISIER_RATIO * configured[k];
+            named[k] |= first;
+            first
+        })
+        .collect()
+}
+
 /// The fastest epoch rate whose estimate the honesty studies have shown consistent, Hz.
 const HONEST_UP_TO_HZ: f64 = 1.0;
 
@@ -182,6 +209,7 @@ fn warn_above_the_honest_rate(epoch_rate_hz: f64) {
 
 #[cfg(test)]
 mod tests {
+    use super::newly_noisier;
     use crate::filter::eskf::FilterPhase;
     use crate::fusion::{EpochOutcome, Fusion, FusionSettings};
     use ladar_sim::{Scenario, SimEvent, Simulator};
@@ -222,5 +250,15 @@ mod tests {
             }
         }
         assert!(fused >= 1, "{fused} epochs fused");
+    }
+
+    #[test]
+    fn a_scanner_ranging_worse_than_configured_is_named_once() {
+        let mut named = [false; 2];
+        let configured = [0.01, 0.01];
+        assert!(newly_noisier(&mut named, configured, [0.012, 0.01]).is_empty());
+        assert_eq!(newly_noisier(&mut named, configured, [0.012, 0.03]), [1]);
+        assert!(newly_noisier(&mut named, configured, [0.012, 0.03]).is_empty());
+        assert_eq!(newly_noisier(&mut named, configured, [0.02, 0.03]), [0]);
     }
 }
