@@ -3,7 +3,7 @@
 //! motion, lose their sensors, or fly where the surfaces leave an axis unobserved
 //! (docs/autopilot.md). The short runs are real tests; the 20-run studies are `#[ignore]`d,
 //! release-mode runs: `cargo test --release --test honest_velocity -- --ignored --nocapture`,
-//! at 1 Hz epochs unless `HONEST_EPOCH_RATE_HZ` names another rate.
+//! at 1 Hz epochs unless `HONEST_EPOCH_RATE_HZ` names another rate for every trial.
 
 use ladar_odometer::daemon::mavlink_out::QualityPolicy;
 use ladar_odometer::fusion::{Fusion, FusionSettings};
@@ -273,20 +273,23 @@ fn first_valid_after(messages: &[Message], after_s: f64) -> Option<f64> {
         .map(|m| m.t - after_s)
 }
 
-/// The epoch rate the studies run at: `HONEST_EPOCH_RATE_HZ`, or the paper's 1 Hz.
-fn study_epoch_rate_hz() -> f64 {
-    std::env::var("HONEST_EPOCH_RATE_HZ").map_or(1.0, |rate| {
+/// The epoch rate `HONEST_EPOCH_RATE_HZ` sets for every trial, if set.
+fn study_epoch_rate_hz() -> Option<f64> {
+    std::env::var("HONEST_EPOCH_RATE_HZ").ok().map(|rate| {
         rate.parse()
             .expect("HONEST_EPOCH_RATE_HZ: an epoch rate in Hz, such as 10")
     })
 }
 
-/// Runs the trials over the machine's cores, in order, at the studies' epoch rate.
+/// Runs the trials over the machine's cores, in order, at their own epoch rate (the paper's
+/// 1 Hz unless they say otherwise) or at `HONEST_EPOCH_RATE_HZ`.
 fn fly_all(trials: &[Trial]) -> Vec<Vec<Message>> {
-    let rate = study_epoch_rate_hz();
     let at_rate: Vec<Trial> = trials
         .iter()
-        .map(|trial| trial.clone().at_epoch_rate(rate))
+        .map(|trial| match study_epoch_rate_hz() {
+            Some(rate) => trial.clone().at_epoch_rate(rate),
+            None => trial.clone(),
+        })
         .collect();
     let workers = std::thread::available_parallelism().map_or(1, usize::from);
     let per_worker = at_rate.len().div_ceil(workers).max(1);
@@ -373,6 +376,23 @@ fn a_flight_started_in_its_hover_is_usable_within_10_s_and_honest() {
 #[test]
 fn on_the_plane_map_a_flight_started_in_its_hover_is_usable_within_10_s_and_honest() {
     assert_the_flight_started_in_its_hover_is_usable(OdometryMethod::Map);
+}
+
+/// At 10 Hz epochs the hallway's corner turns the body 2-3 degrees between an epoch's
+/// reference time and the clone its relative pose is bridged to. The bridge kept the directions
+/// the planes observed in the reference epoch's axes, so the displacement anchored along the
+/// unobserved hallway, the filter's own velocity of a start in motion, leaked into the observed
+/// rows as if measured: flights started 14-17 s in sent along-track velocities 2 m/s off at
+/// quality 10-17 (docs/autopilot.md, "Above 1 Hz").
+#[test]
+fn a_flight_started_in_motion_at_10_hz_sends_no_wrong_velocity_as_usable() {
+    let trials: Vec<Trial> = starts_in_motion("hallway-flight", 20, 33.0, 10.0)
+        .into_iter()
+        .map(|trial| trial.at_epoch_rate(10.0))
+        .collect();
+    let verdict = Verdict::pooled(&fly_all(&trials));
+    assert!(verdict.valid > 0, "never usable: {verdict:?}");
+    verdict.assert_honest("hallway-flight, started in motion, 10 Hz");
 }
 
 fn assert_the_flight_started_in_its_hover_is_usable(method: OdometryMethod) {

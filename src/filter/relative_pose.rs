@@ -116,7 +116,8 @@ impl RelativePoseMeasurement {
     /// filter's current pose, near `t`), bridging the few milliseconds at each end with the
     /// filter's own propagated motion between `at_ref` (pose at `t_ref`) and `from`, and
     /// between `at_t` (pose at `t`) and `to`. Over such short bridges the IMU motion is far
-    /// more precise than the odometry, so the covariances are kept as reported.
+    /// more precise than the odometry, so the covariances are kept as reported, turned into
+    /// the new axes.
     pub(crate) fn bridged(&self, from: &Pose, at_ref: &Pose, at_t: &Pose, to: &Pose) -> Self {
         let (c_front, d_front) = Self::predict(from, at_ref);
         let (c_back, d_back) = Self::predict(at_t, to);
@@ -124,16 +125,23 @@ impl RelativePoseMeasurement {
             Some(r) => UnitQuaternion::from_scaled_axis(r.rotation_vector),
             None => Self::predict(at_ref, at_t).0,
         };
+        // A right perturbation in body-j axes is one in the `to` axes through `c_back`'s
+        // inverse; the displacement's body-i axes are the clone's through `c_front`. The
+        // directions each observes turn with them: kept in the old axes across a turn, they
+        // let the anchored, unobserved motion into the observed rows.
+        let to_axes = c_back.inverse();
         Self {
             t_ref: from.t,
             t: to.t,
             rotation: self.rotation.map(|r| RelativeRotation {
                 rotation_vector: (c_front * measured_rotation * c_back).scaled_axis(),
-                ..r
+                covariance: turned(&r.covariance, &to_axes),
+                observability: r.observability.turned(&to_axes),
             }),
             translation: self.translation.map(|d| RelativeTranslation {
                 displacement: d_front + c_front * (d.displacement + measured_rotation * d_back),
-                ..d
+                covariance: turned(&d.covariance, &c_front),
+                observability: d.observability.turned(&c_front),
             }),
             shared: self.shared,
         }
@@ -343,6 +351,53 @@ fn rotation_residual(predicted: &UnitQuaternion<f64>, measured: &Vector3<f64>) -
     (predicted.inverse() * UnitQuaternion::from_scaled_axis(*measured)).scaled_axis()
 }
 
+/// A covariance in axes turned by `rotation` (old axes -> new).
+fn turned(covariance: &Matrix3<f64>, rotation: &UnitQuaternion<f64>) -> Matrix3<f64> {
+    let r = rotation.to_rotation_matrix().into_inner();
+    r * covariance * r.transpose()
+}
+
 fn set(h: &mut Jacobian3, column: usize, block: &Matrix3<f64>) {
     h.fixed_view_mut::<3, 3>(0, column).copy_from(block);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A corridor's epoch: the displacement along body-i x unobserved (anchored at `along_m`).
+    fn corridor_epoch(along_m: f64) -> RelativePoseMeasurement {
+        RelativePoseMeasurement {
+            t_ref: 1.0,
+            t: 1.1,
+            rotation: None,
+            translation: Some(RelativeTranslation {
+                displacement: Vector3::new(along_m, 0.002, -0.001),
+                covariance: Matrix3::identity() * 1e-6,
+                observability: Observability::from_unobservable(&[Vector3::x()]),
+            }),
+            shared: None,
+        }
+    }
+
+    #[test]
+    fn a_bridge_across_a_turn_keeps_the_unobserved_motion_out_of_the_observed_rows() {
+        let pose = |t: f64, yaw: f64| Pose {
+            t,
+            p: Vector3::zeros(),
+            q: UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+        };
+        // The clone 25 ms before the reference epoch, turning at 0.4 rad/s.
+        let (from, at_ref, at_t) = (pose(0.975, 0.0), pose(1.0, 0.01), pose(1.1, 0.05));
+        let bridge = |along_m: f64| {
+            corridor_epoch(along_m)
+                .bridged(&from, &at_ref, &at_t, &at_t)
+                .translation
+                .unwrap()
+        };
+        let (anchored_right, anchored_wrong) = (bridge(0.0), bridge(0.25));
+        let observed = anchored_wrong.observability.projector();
+        let leak = observed * (anchored_wrong.displacement - anchored_right.displacement);
+        assert!(leak.norm() < 1e-9, "{leak:?}");
+    }
 }

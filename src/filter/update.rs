@@ -1,7 +1,7 @@
 //! The Kalman measurement update shared by every measurement (relative pose, zero velocity),
 //! with projection onto the observable directions and the chi-square innovation gate.
 
-use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::consistency::chi_square_quantile;
 use super::covariance::symmetrise;
@@ -50,6 +50,14 @@ impl Observability {
             &order.map(|i| -> Vector3<f64> { eigen.eigenvectors.column(i).into() }),
         );
         Self { basis, rank }
+    }
+
+    /// The same directions in axes turned by `rotation` (old axes -> new).
+    pub(crate) fn turned(&self, rotation: &UnitQuaternion<f64>) -> Self {
+        Self {
+            basis: rotation.to_rotation_matrix().into_inner() * self.basis,
+            rank: self.rank,
+        }
     }
 
     pub fn rank(&self) -> usize {
