@@ -195,14 +195,16 @@ fn newly_noisier(named: &mut [bool; 2], configured: [f64; 2], used: [f64; 2]) ->
 const HONEST_UP_TO_HZ: f64 = 1.0;
 
 /// Faster epochs are allowed (the plane map's figures are measured at 10 Hz too), but at 10 Hz
-/// a flight started in motion sent velocities 2 m/s off as usable, and a hover's sigmas were
-/// too small by half (docs/autopilot.md, "Above 1 Hz"): the user must hear it.
+/// a hover's sideways sigma on the pairs is too small by a third, and the map along a bare
+/// corridor sent velocities 1.4 m/s off as usable (docs/autopilot.md, "Above 1 Hz"): the user
+/// must hear it.
 fn warn_above_the_honest_rate(epoch_rate_hz: f64) {
     if epoch_rate_hz > HONEST_UP_TO_HZ {
         tracing::warn!(
             epoch_rate_hz,
-            "fusion.epoch_rate_hz above {HONEST_UP_TO_HZ} Hz is not yet honest after a start in \
-             motion or in a hover (docs/autopilot.md, \"Above 1 Hz\"): set it to 1 for flight"
+            "fusion.epoch_rate_hz above {HONEST_UP_TO_HZ} Hz is not yet honest in a hover or, on \
+             the plane map, along a bare corridor (docs/autopilot.md, \"Above 1 Hz\"): set it \
+             to 1 for flight"
         );
     }
 }
