@@ -128,7 +128,9 @@ impl RelativePoseMeasurement {
         // A right perturbation in body-j axes is one in the `to` axes through `c_back`'s
         // inverse; the displacement's body-i axes are the clone's through `c_front`. The
         // directions each observes turn with them: kept in the old axes across a turn, they
-        // let the anchored, unobserved motion into the observed rows.
+        // let the anchored, unobserved motion into the observed rows. The shared noise stays
+        // as it is: it holds the planes' own noise, along the observed directions, and a few
+        // mrad of turn moves a few thousandths of it.
         let to_axes = c_back.inverse();
         Self {
             t_ref: from.t,
