@@ -284,9 +284,10 @@ fn study_epoch_rate_hz() -> Option<f64> {
 /// Runs the trials over the machine's cores, in order, at their own epoch rate (the paper's
 /// 1 Hz unless they say otherwise) or at `HONEST_EPOCH_RATE_HZ`.
 fn fly_all(trials: &[Trial]) -> Vec<Vec<Message>> {
+    let study_rate = study_epoch_rate_hz();
     let at_rate: Vec<Trial> = trials
         .iter()
-        .map(|trial| match study_epoch_rate_hz() {
+        .map(|trial| match study_rate {
             Some(rate) => trial.clone().at_epoch_rate(rate),
             None => trial.clone(),
         })
