@@ -356,7 +356,7 @@ fn nees_sample(filter: &Eskf, truth: &TruthSample) -> Option<NeesSample> {
         .copy_from(&(truth.q * state.q.inverse()).scaled_axis());
     let mut values = [0.0; NeesPart::ALL.len()];
     for (value, part) in values.iter_mut().zip(NeesPart::ALL) {
-        *value = normalised(&error, covariance, part.indices())?;
+        *value = normalised(&error, &covariance, part.indices())?;
     }
     Some(NeesSample { t: truth.t, values })
 }

@@ -246,6 +246,10 @@ pub struct Eskf {
     map: MapStates,
     /// The gate's chi-square thresholds by rows of lines on the map, filled as counts occur.
     map_gates: Vec<f64>,
+    /// The position's variance the map took over along unfaced directions
+    /// (`MapStates::hand_place_to_map`): no longer the filter's to linearise at, still the
+    /// estimate's to report.
+    place_handed_over: Matrix3<f64>,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -334,6 +338,7 @@ impl Eskf {
             velocity_corrections: Vector3::zeros(),
             map: MapStates::default(),
             map_gates: Vec::new(),
+            place_handed_over: Matrix3::zeros(),
             config,
         })
     }
@@ -508,6 +513,7 @@ impl Eskf {
             return ImuOutcome::Gap { seconds };
         }
         if seconds > self.config.max_coast_s {
+            self.take_place_back();
             self.resume = Some(Resume::of(&self.state, &self.covariance));
             self.restart_alignment(t);
             self.count_reset(ResetReason::ImuGap { seconds });
@@ -764,6 +770,7 @@ impl Eskf {
         self.clone = None;
         self.carried = None;
         self.map.clear();
+        self.place_handed_over = Matrix3::zeros();
         self.count_reset(reason);
     }
 
@@ -775,6 +782,7 @@ impl Eskf {
     /// the runaway velocity (100 mrad in `open-room` started in motion, twice the start's
     /// sigma). Until the estimate converges again it is not to be trusted.
     fn reinitialise(&mut self, reason: ResetReason) {
+        self.take_place_back();
         let resume = Resume::of(&self.state, &self.covariance);
         let attitude = self
             .recent_force
@@ -809,6 +817,7 @@ impl Eskf {
         self.recent_force.clear();
         self.clone = None;
         self.carried = None;
+        self.take_place_back();
         self.map.clear();
         self.zero_motion = None;
         self.guard.clear();
@@ -888,7 +897,7 @@ impl Eskf {
             velocity: self.state.v,
             attitude: self.state.q,
             angular_rate: self.angular_rate,
-            position_covariance: block(POS),
+            position_covariance: block(POS) + self.place_handed_over,
             velocity_covariance: block(VEL),
             velocity_attitude_covariance: self.covariance.fixed_view::<3, 3>(VEL, ATT).into(),
             attitude_covariance: block(ATT),
@@ -934,9 +943,13 @@ impl Eskf {
         &self.state
     }
     /// The 33x33 covariance; rows and columns 21.. are the clone's and the carried noise's,
-    /// meaningful only while a clone is open.
-    pub fn covariance(&self) -> &Covariance {
-        &self.covariance
+    /// meaningful only while a clone is open. The position's includes what the plane map took
+    /// over along unfaced directions, as the estimate reports it.
+    pub fn covariance(&self) -> Covariance {
+        let mut covariance = self.covariance;
+        let mut position = covariance.fixed_view_mut::<3, 3>(POS, POS);
+        position += self.place_handed_over;
+        covariance
     }
     pub fn time(&self) -> Option<f64> {
         self.t

@@ -17,7 +17,9 @@ use std::ops::SubAssign;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x2, SMatrix, Vector3};
 
 use super::covariance::{symmetrise, ErrorDynamics};
-use super::state::{Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT, ERROR_STATES, POS};
+use super::state::{
+    Covariance, ErrorState, ATT, AUGMENTED, CLONE_ATT, CLONE_POS, ERROR_STATES, POS,
+};
 use super::update::{reset_attitude_error, NotPositiveDefinite};
 
 /// Error states of one surface: two tangent turns of its normal, then its distance.
@@ -321,6 +323,61 @@ impl MapStates {
                 .all(|s| s.distance.is_finite() && s.normal.iter().all(|x| x.is_finite()))
     }
 
+    /// Moves the origin of the navigation frame along the directions `q` projects on (unit
+    /// directions no fused surface faces) to where the body truly is, in the errors alone: the
+    /// position's error along them goes to the open clone (when `clone_open`) and to every
+    /// surface's distance, and the position's own variance there becomes zero. Returns that
+    /// variance (`q P q`), which the estimate still reports.
+    ///
+    /// A translation of the body, its clone and the whole map together is never observed, so
+    /// this tells the filter nothing and takes nothing from it. What it changes is where the
+    /// lines are linearised: a surface's turn moves a line's offset by the turn times where
+    /// the body is, and along a direction no surface faces the body's place drifts without
+    /// bound (16 m off at a 4 m sigma after 100 s of a bare corridor at 10 Hz). Linearised
+    /// there, every epoch taught the floor and the walls a tilt along the corridor that they
+    /// did not have, and the pitch and the velocity followed them (docs/design.md 4.11,
+    /// "The body's place along an unfaced direction").
+    pub(crate) fn hand_place_to_map(
+        &mut self,
+        p: &mut Covariance,
+        q: &Matrix3<f64>,
+        clone_open: bool,
+    ) -> Matrix3<f64> {
+        self.settle();
+        let place = p.fixed_view::<3, 3>(POS, POS).into_owned();
+        let mut to_core = SMatrix::<f64, AUGMENTED, 3>::zeros();
+        to_core.fixed_view_mut::<3, 3>(POS, 0).copy_from(&(-q));
+        if clone_open {
+            to_core
+                .fixed_view_mut::<3, 3>(CLONE_POS, 0)
+                .copy_from(&(-q));
+        }
+        let mut to_map = DMatrix::<f64>::zeros(self.states(), 3);
+        for (k, surface) in self.surfaces.iter().enumerate() {
+            let row = -(surface.normal.transpose() * q);
+            to_map
+                .row_mut(SURFACE_STATES * k + SURFACE_STATES - 1)
+                .copy_from(&row);
+        }
+        let with_place = p.fixed_view::<AUGMENTED, 3>(0, POS).into_owned();
+        let map_with_place = self.cross.rows(POS, 3).into_owned();
+        let to_core_dyn = DMatrix::from_column_slice(AUGMENTED, 3, to_core.as_slice());
+        let with_place_dyn = DMatrix::from_column_slice(AUGMENTED, 3, with_place.as_slice());
+        let place_dyn = DMatrix::from_column_slice(3, 3, place.as_slice());
+        self.cross += &to_core_dyn * &map_with_place
+            + &with_place_dyn * to_map.transpose()
+            + &to_core_dyn * &place_dyn * to_map.transpose();
+        self.own += &to_map * &map_with_place
+            + map_with_place.transpose() * to_map.transpose()
+            + &to_map * &place_dyn * to_map.transpose();
+        *p += to_core * with_place.transpose()
+            + with_place * to_core.transpose()
+            + to_core * place * to_core.transpose();
+        symmetrise(p);
+        self.symmetrise_own();
+        q * place * q
+    }
+
     /// The surfaces' error-state sigmas, in map order.
     pub(crate) fn sigmas(&self, index: usize) -> Vector3<f64> {
         self.own_block(index, index)
@@ -440,6 +497,58 @@ mod tests {
         let gated = free.update(&mut p, &point_row(&free, 0, 0.05, 0.001), 1e9, None);
         assert!(gated.unwrap().correction.unwrap()[POS] > 0.002);
         assert!(p[(POS, POS)] < before[(POS, POS)]);
+    }
+
+    #[test]
+    fn handing_the_place_to_the_map_changes_nothing_any_line_can_see() {
+        use crate::filter::state::VEL;
+        // A corridor: a wall facing y, a floor facing z, and an end wall facing x, placed
+        // from the body, which then walked on until it was 2 m unsure of its place along x.
+        let mut p = Covariance::identity() * 1e-4;
+        let mut map = MapStates::default();
+        let mut placed = |normal: Vector3<f64>, distance: f64| {
+            let mut prior = prior(normal, distance, 0.01);
+            for k in 0..3 {
+                prior.on_state[(SURFACE_STATES - 1, POS + k)] = normal[k];
+            }
+            map.add(&p, &prior);
+        };
+        placed(Vector3::y(), 1.1);
+        placed(Vector3::z(), 1.2);
+        placed(Vector3::x(), 27.0);
+        p[(POS, POS)] += 4.0;
+        p[(POS, VEL)] = 0.01;
+        p[(VEL, POS)] = 0.01;
+        // What any line sees: the body against each surface (`n . dp - dd`), and the velocity.
+        let seen = |map: &MapStates, p: &Covariance| -> Vec<f64> {
+            let mut variances: Vec<f64> = (0..3)
+                .map(|index| {
+                    let row = point_row(map, index, 0.0, 0.0);
+                    let joint = |a: &DMatrix<f64>, b: &DMatrix<f64>| (a * b)[(0, 0)];
+                    let p_dyn = DMatrix::from_column_slice(AUGMENTED, AUGMENTED, p.as_slice());
+                    joint(&(&row.core * &p_dyn), &row.core.transpose())
+                        + 2.0 * joint(&(&row.core * &map.cross), &row.surfaces.transpose())
+                        + joint(&(&row.surfaces * &map.own), &row.surfaces.transpose())
+                })
+                .collect();
+            variances.push(p[(VEL, VEL)]);
+            variances
+        };
+        let before = seen(&map, &p);
+        let along = Matrix3::from_diagonal(&Vector3::x());
+        let handed = map.hand_place_to_map(&mut p, &along, false);
+        assert!((handed[(0, 0)] - 4.0001).abs() < 1e-12, "{handed}");
+        assert!(p[(POS, POS)].abs() < 1e-12 && p[(POS, VEL)].abs() < 1e-12);
+        // The end wall now carries the body's unsureness along x; the others are untouched.
+        assert!(
+            (map.sigmas(2).z.powi(2) - 4.0).abs() < 1e-3,
+            "{}",
+            map.sigmas(2)
+        );
+        assert!(map.sigmas(0).z < 0.02 && map.sigmas(1).z < 0.02);
+        for (after, before) in seen(&map, &p).iter().zip(&before) {
+            assert!((after - before).abs() < 1e-12, "{after} against {before}");
+        }
     }
 
     #[test]

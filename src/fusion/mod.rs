@@ -230,7 +230,11 @@ impl Fusion {
     /// (`observability_settled`).
     fn ready_for_the_map(&self) -> bool {
         let surely_placed = || {
-            let velocity = self.filter.covariance().fixed_view::<3, 3>(VEL, VEL);
+            let velocity = self
+                .filter
+                .covariance()
+                .fixed_view::<3, 3>(VEL, VEL)
+                .into_owned();
             let largest_sigma = velocity.symmetric_eigenvalues().max().max(0.0).sqrt();
             let horizon_s = self.config.epoch_interval_s().max(PAPER_EPOCH_S);
             largest_sigma * horizon_s <= witnesses::SURE_MATCH_SIGMA_M
