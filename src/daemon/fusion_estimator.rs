@@ -195,9 +195,9 @@ fn newly_noisier(named: &mut [bool; 2], configured: [f64; 2], used: [f64; 2]) ->
 const HONEST_UP_TO_HZ: f64 = 1.0;
 
 /// Faster epochs are allowed (the plane map's figures are measured at 10 Hz too), but at 10 Hz
-/// a hover's sideways sigma on the pairs is too small by a third, and the map along a bare
-/// corridor sent velocities 1.4 m/s off as usable (docs/autopilot.md, "Above 1 Hz"): the user
-/// must hear it.
+/// a hover's sideways sigma on the pairs is too small by a third. Along a bare corridor, two
+/// runs of twenty on the map still send velocities off by 3.7-3.8 of their sigmas as usable
+/// (docs/autopilot.md, "Above 1 Hz"). The user must hear it.
 fn warn_above_the_honest_rate(epoch_rate_hz: f64) {
     if epoch_rate_hz > HONEST_UP_TO_HZ {
         tracing::warn!(
