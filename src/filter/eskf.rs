@@ -246,9 +246,10 @@ pub struct Eskf {
     map: MapStates,
     /// The gate's chi-square thresholds by rows of lines on the map, filled as counts occur.
     map_gates: Vec<f64>,
-    /// The position's variance the map took over along unfaced directions
-    /// (`MapStates::hand_place_to_map`): no longer the filter's to linearise at, still the
-    /// estimate's to report.
+    /// What the map took over of the position's error along unfaced directions
+    /// (`MapStates::hand_place_to_map`), as the sum of each hand-over's standard deviation
+    /// (`handed_over_place`): no longer the filter's to linearise at, still the estimate's to
+    /// report.
     place_handed_over: Matrix3<f64>,
 }
 
@@ -897,7 +898,7 @@ impl Eskf {
             velocity: self.state.v,
             attitude: self.state.q,
             angular_rate: self.angular_rate,
-            position_covariance: block(POS) + self.place_handed_over,
+            position_covariance: block(POS) + self.handed_over_place(),
             velocity_covariance: block(VEL),
             velocity_attitude_covariance: self.covariance.fixed_view::<3, 3>(VEL, ATT).into(),
             attitude_covariance: block(ATT),
@@ -948,7 +949,7 @@ impl Eskf {
     pub fn covariance(&self) -> Covariance {
         let mut covariance = self.covariance;
         let mut position = covariance.fixed_view_mut::<3, 3>(POS, POS);
-        position += self.place_handed_over;
+        position += self.handed_over_place();
         covariance
     }
     pub fn time(&self) -> Option<f64> {
