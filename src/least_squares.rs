@@ -156,6 +156,11 @@ pub(crate) fn directions_below(matrix: &Matrix3<f64>, tolerance: f64) -> Vec<Vec
         .collect()
 }
 
+/// `sum n n^T` of `normals`: how much of each direction they face together.
+pub(crate) fn facing<'a>(normals: impl IntoIterator<Item = &'a Vector3<f64>>) -> Matrix3<f64> {
+    normals.into_iter().map(|n| n * n.transpose()).sum()
+}
+
 /// `H^T H`: the rows' geometry without their weights.
 fn gram(h: &DMatrix<f64>) -> Matrix3<f64> {
     (h.transpose() * h).fixed_view::<3, 3>(0, 0).into()

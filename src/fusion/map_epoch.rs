@@ -12,7 +12,7 @@ use super::Fusion;
 use crate::estimate::IntegrityStatus;
 use crate::filter::{FilterPhase, LineOnSurface, MapLine, Pose};
 use crate::integrity::blocks::{test_surfaces, Block, MapIntegrity, StackedInnovation};
-use crate::least_squares::{directions_below, PARALLEL_TOLERANCE};
+use crate::least_squares::{directions_below, facing, PARALLEL_TOLERANCE};
 use crate::odometry::planes::LineRef;
 use crate::odometry::EpochPlanes;
 use crate::sensors::Scan;
@@ -45,7 +45,7 @@ const LONE_CHECK_SIGMA_M: f64 = 0.02;
 /// Whether `normal` faces a direction none of `others` faces: more than a tenth of it lies
 /// where their normals together hold less than a twentieth of a surface's facing.
 fn faces_alone(normal: &Vector3<f64>, others: &[Vector3<f64>]) -> bool {
-    let eigen = gram(others).symmetric_eigen();
+    let eigen = facing(others).symmetric_eigen();
     let unfaced: f64 = (0..3)
         .filter(|&k| eigen.eigenvalues[k] < 0.05)
         .map(|k| normal.dot(&eigen.eigenvectors.column(k)).powi(2))
@@ -411,12 +411,7 @@ impl Fusion {
 /// The directions `normals` leave unobserved, judged on the normals as the pairs' solves judge
 /// their planes (`least_squares::PARALLEL_TOLERANCE`).
 fn unfaced_by(normals: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    directions_below(&gram(normals), PARALLEL_TOLERANCE)
-}
-
-/// `sum n n^T` of `normals`: how much of each direction they face together.
-fn gram(normals: &[Vector3<f64>]) -> nalgebra::Matrix3<f64> {
-    normals.iter().map(|n| n * n.transpose()).sum()
+    directions_below(&facing(normals), PARALLEL_TOLERANCE)
 }
 
 #[cfg(test)]

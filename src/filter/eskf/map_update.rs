@@ -9,7 +9,7 @@ use crate::filter::consistency::chi_square_quantile;
 use crate::filter::history::Pose;
 use crate::filter::map_states::{JointRows, Surface, SurfacePrior, SURFACE_STATES};
 use crate::filter::state::{ATT, AUGMENTED, POS, VEL};
-use crate::least_squares::PARALLEL_TOLERANCE;
+use crate::least_squares::{facing, PARALLEL_TOLERANCE};
 
 /// A line of one scan in the body frame at its epoch's reference time, as the map sees it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -402,12 +402,7 @@ impl Eskf {
     /// given away there in every epoch of the open room's hover, the place drifted 5.6 cm in a
     /// minute instead of 0.2 cm.
     fn unfaced_by_the_map(&self, unfaced: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        let gram: Matrix3<f64> = self
-            .map
-            .surfaces()
-            .iter()
-            .map(|s| s.normal * s.normal.transpose())
-            .sum();
+        let gram = facing(self.map.surfaces().iter().map(|s| &s.normal));
         let largest = gram.symmetric_eigenvalues().max();
         unfaced
             .iter()
