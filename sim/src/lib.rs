@@ -20,6 +20,7 @@
 
 mod builtin;
 mod imu;
+mod random_corridor;
 mod random_room;
 mod scanner;
 mod scenario;

@@ -2,10 +2,10 @@
 
 use super::builtin;
 use super::imu::{ImuConfig, TriadErrors};
-use super::random_room;
 use super::scanner::ScannerConfig;
 use super::scene::Scene;
 use super::trajectory::Trajectory;
+use super::{random_corridor, random_room};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -21,7 +21,7 @@ pub const BUILTIN_NAMES: [&str; 7] = [
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N (N any whole number), or give a .toml file")]
+    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file")]
     UnknownName(String),
     #[error("cannot read scenario file {path}: {reason}")]
     Unreadable { path: String, reason: String },
@@ -59,6 +59,14 @@ pub struct Scenario {
     pub scene: Scene,
 }
 
+/// `random-room-N` or `random-corridor-N`: the scene drawn from seed N.
+fn drawn_from_a_seed(name: &str) -> Option<Scenario> {
+    let seed = |prefix: &str| name.strip_prefix(prefix)?.parse().ok();
+    seed(random_room::PREFIX)
+        .map(random_room::random_room)
+        .or_else(|| seed(random_corridor::PREFIX).map(random_corridor::random_corridor))
+}
+
 impl Scenario {
     pub fn builtin(name: &str) -> Result<Self, ScenarioError> {
         match name {
@@ -69,11 +77,9 @@ impl Scenario {
             "bare-corridor" => Ok(builtin::bare_corridor()),
             "open-room" => Ok(builtin::open_room()),
             "hall-walk" => Ok(builtin::hall_walk()),
-            _ => name
-                .strip_prefix(random_room::PREFIX)
-                .and_then(|seed| seed.parse().ok())
-                .map(random_room::random_room)
-                .ok_or_else(|| ScenarioError::UnknownName(name.to_string())),
+            _ => {
+                drawn_from_a_seed(name).ok_or_else(|| ScenarioError::UnknownName(name.to_string()))
+            }
         }
     }
 
@@ -194,7 +200,7 @@ mod tests {
         let err = Scenario::builtin("foo").unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N (N any whole number), or give a .toml file"
+            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file"
         );
         assert!(matches!(
             Scenario::resolve("foo"),
