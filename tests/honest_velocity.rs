@@ -483,6 +483,34 @@ fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
     }
 }
 
+/// Narrow corridors nobody tuned on (1.4-1.6 m wide, bare but for one cabinet), walked down
+/// and back, the body turning round with its track: to the far end at 1 m/s
+/// (`random-corridor-4`) and 7.6 m in at 0.5 m/s (`random-corridor-10`). On the paper's pairs
+/// the tilt and the accelerometer's bias come out of the turn surer than they are while
+/// nothing measures the motion along the corridor, and the velocity along it drifts 4-5 sigma
+/// off at quality 10-60 (0.55 and 0.85 of the usable messages inside 3 sigma, mean NEES 9 and
+/// 2.2; docs/autopilot.md, "Corridors nobody tuned on"). The plane map stays honest.
+#[test]
+fn on_the_plane_map_a_corridor_walked_down_and_back_is_honest() {
+    let trials: Vec<Trial> = [4, 10]
+        .map(|seed| {
+            Trial::new(&format!("random-corridor-{seed}"), seed, 0.0)
+                .measured_by(OdometryMethod::Map)
+        })
+        .to_vec();
+    for (trial, run) in trials.iter().zip(fly_all(&trials)) {
+        let verdict = Verdict::of(&run);
+        assert!(
+            verdict.valid * 2 >= verdict.messages,
+            "{}: usable in only {} of {} messages",
+            trial.scenario.name,
+            verdict.valid,
+            verdict.messages
+        );
+        verdict.assert_honest(&trial.scenario.name);
+    }
+}
+
 /// The pairs hand over to the plane map only after an epoch that observed nothing new: in
 /// this flight the end wall comes into view 37 s in, and the map that took over then held a
 /// velocity 0.1 m/s off at 1 cm/s sigma.
@@ -739,16 +767,33 @@ fn outages_in_flight(method: OdometryMethod) {
 #[test]
 #[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_random_rooms_20_runs() {
-    random_rooms(OdometryMethod::Pairs);
+    drawn_scenes("random-room-", OdometryMethod::Pairs);
 }
 
 #[test]
 #[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_plane_map_random_rooms_20_runs() {
-    random_rooms(OdometryMethod::Map);
+    drawn_scenes("random-room-", OdometryMethod::Map);
 }
 
-fn random_rooms(method: OdometryMethod) {
+/// Corridors nobody tuned the odometer on (`random-corridor-N`, seeds 1-20), judged as the
+/// random rooms are: along most of a corridor nothing measures the motion along it, and
+/// whatever the corridor's width, fixtures and walk, the estimate must say so.
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_random_corridors_20_runs() {
+    drawn_scenes("random-corridor-", OdometryMethod::Pairs);
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_plane_map_random_corridors_20_runs() {
+    drawn_scenes("random-corridor-", OdometryMethod::Map);
+}
+
+/// The scenes `{prefix}1` to `{prefix}20`, the even seeds started still and the odd ones in
+/// motion 20-40 s in (the odd seeds also carry the rolled rig).
+fn drawn_scenes(prefix: &str, method: OdometryMethod) {
     let trials: Vec<Trial> = (1..=20u64)
         .map(|seed| {
             let start_s = if seed.is_multiple_of(2) {
@@ -756,7 +801,7 @@ fn random_rooms(method: OdometryMethod) {
             } else {
                 20.0 + 20.0 * (seed as f64 * 0.618_034).fract()
             };
-            Trial::new(&format!("random-room-{seed}"), seed, start_s).measured_by(method)
+            Trial::new(&format!("{prefix}{seed}"), seed, start_s).measured_by(method)
         })
         .collect();
     let runs = fly_all(&trials);
@@ -770,14 +815,16 @@ fn random_rooms(method: OdometryMethod) {
             serde_json::to_string(&verdict).unwrap(),
             first_valid_after(run, trial.start_s)
         );
-        let honest = (0..3)
-            .all(|axis| verdict.inside_3_sigma[axis] >= 0.95 && verdict.mean_nees[axis] <= 2.5);
+        // A run never usable claims nothing.
+        let honest = verdict.valid == 0
+            || (0..3)
+                .all(|axis| verdict.inside_3_sigma[axis] >= 0.95 && verdict.mean_nees[axis] <= 2.5);
         if !honest {
             dishonest.push(trial.scenario.name.clone());
         }
     }
     println!(
-        "random rooms, {method:?}, 20 runs: {}",
+        "{prefix}1-20, {method:?}: {}",
         serde_json::to_string(&Verdict::pooled(&runs)).unwrap()
     );
     assert!(dishonest.len() <= 1, "not honest in {dishonest:?}");
