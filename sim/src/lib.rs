@@ -19,6 +19,7 @@
 //! - True planes are Hesse planes in the body frame: `normal . x = distance`, `distance >= 0`.
 
 mod builtin;
+mod drawn_walk;
 mod imu;
 mod random_corridor;
 mod random_room;

@@ -6,20 +6,16 @@
 //! measures the motion along it, so these are the scenes where an axis goes unobserved for the
 //! longest. Even seeds carry the paper's rig, odd ones the rolled rig of `config/default.toml`.
 
-use super::builtin::{box_room, gentle_hover, hallway_scanners, paper_rig_scanners, tidy, walker};
-use super::imu::ImuConfig;
+use super::builtin::{box_room, tidy, walker};
+use super::drawn_walk::{body_pitch_deg, DrawnWalk};
 use super::scenario::Scenario;
 use super::scene::{Motion, Profile, Scene};
-use super::trajectory::Trajectory;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// The prefix of the built-in name; the seed follows it.
 pub(crate) const PREFIX: &str = "random-corridor-";
 
-/// Still for this long at the start, as the other scenes, so that a still start is possible.
-const STILL_S: f64 = 10.0;
-const DURATION_S: f64 = 90.0;
 /// How close the path comes to a side wall, m.
 const SIDE_MARGIN_M: f64 = 0.6;
 /// How close the path comes to an end wall, m.
@@ -82,34 +78,17 @@ pub(crate) fn random_corridor(seed: u64) -> Scenario {
     if !rng.gen_bool(0.25) {
         furnish(&mut scene, &corridor, &mut rng);
     }
-    let pitch = if rng.gen_bool(0.5) {
-        -10.0
-    } else {
-        rng.gen_range(-15.0..-3.0)
-    };
-    let scanners = if seed.is_multiple_of(2) {
-        paper_rig_scanners()
-    } else {
-        hallway_scanners()
-    };
-    Scenario {
+    let pitch = body_pitch_deg(&mut rng);
+    let yaw = angle_to_track(&path, &mut rng);
+    DrawnWalk {
         name: format!("{PREFIX}{seed}"),
         seed,
-        duration_s: DURATION_S,
-        truth_rate_hz: 50.0,
-        trajectory: Trajectory::Waypoints {
-            position_m: [0.0; 3],
-            rpy_deg: tidy([0.0, pitch, angle_to_track(&path, &mut rng)]),
-            start_s: STILL_S + rng.gen_range(0.0..10.0),
-            waypoints_m: path[1..].to_vec(),
-            speed_mps: tidy([rng.gen_range(0.1..1.0)])[0],
-            blend_s: 4.0,
-            oscillation: gentle_hover(STILL_S),
-        },
-        scanners,
-        imu: Some(ImuConfig::default()),
         scene,
+        path,
+        rpy_deg: [0.0, pitch, yaw],
+        speeds_mps: 0.1..1.0,
     }
+    .into_scenario(&mut rng)
 }
 
 /// The start's heading: along the first leg in half the corridors, up to 30 degrees off it in
@@ -205,17 +184,12 @@ fn furnish(scene: &mut Scene, corridor: &Corridor, rng: &mut ChaCha8Rng) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::drawn_walk::assert_every_seed_draws_the_same_valid_scene;
+    use crate::trajectory::Trajectory;
 
     #[test]
     fn every_seed_draws_a_valid_corridor_the_same_way_each_time() {
-        for seed in 0..200 {
-            let scenario = random_corridor(seed);
-            scenario
-                .validate()
-                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-            assert_eq!(scenario, random_corridor(seed), "seed {seed}");
-        }
-        assert_ne!(random_corridor(1), random_corridor(2));
+        assert_every_seed_draws_the_same_valid_scene(random_corridor);
     }
 
     #[test]

@@ -4,20 +4,16 @@
 //! walking along a wall, and a walk through two to four random waypoints at a random speed.
 //! Half the seeds carry the paper's rig, half the rolled rig of `config/default.toml`.
 
-use super::builtin::{box_room, gentle_hover, hallway_scanners, paper_rig_scanners, tidy, walker};
-use super::imu::ImuConfig;
+use super::builtin::{box_room, tidy, walker};
+use super::drawn_walk::{body_pitch_deg, DrawnWalk};
 use super::scenario::Scenario;
 use super::scene::{Motion, Profile, Scene};
-use super::trajectory::Trajectory;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 /// The prefix of the built-in name; the seed follows it.
 pub(crate) const PREFIX: &str = "random-room-";
 
-/// Still for this long at the start, as the other scenes, so that a still start is possible.
-const STILL_S: f64 = 10.0;
-const DURATION_S: f64 = 90.0;
 /// How close the path comes to a wall, m.
 const PATH_MARGIN_M: f64 = 1.2;
 /// How close a pillar stands to the path, beyond its own half diagonal, m.
@@ -80,35 +76,17 @@ pub(crate) fn random_room(seed: u64) -> Scenario {
     let path = draw_path(&room, &mut rng);
     let mut scene = room.shell();
     furnish(&mut scene, &room, &path, &mut rng);
-    let pitch = if rng.gen_bool(0.5) {
-        -10.0
-    } else {
-        rng.gen_range(-15.0..-3.0)
-    };
+    let pitch = body_pitch_deg(&mut rng);
     let yaw = rng.gen_range(-180.0..180.0);
-    let scanners = if seed.is_multiple_of(2) {
-        paper_rig_scanners()
-    } else {
-        hallway_scanners()
-    };
-    Scenario {
+    DrawnWalk {
         name: format!("{PREFIX}{seed}"),
         seed,
-        duration_s: DURATION_S,
-        truth_rate_hz: 50.0,
-        trajectory: Trajectory::Waypoints {
-            position_m: [0.0; 3],
-            rpy_deg: tidy([0.0, pitch, yaw]),
-            start_s: STILL_S + rng.gen_range(0.0..10.0),
-            waypoints_m: path[1..].to_vec(),
-            speed_mps: tidy([rng.gen_range(0.15..0.8)])[0],
-            blend_s: 4.0,
-            oscillation: gentle_hover(STILL_S),
-        },
-        scanners,
-        imu: Some(ImuConfig::default()),
         scene,
+        path,
+        rpy_deg: [0.0, pitch, yaw],
+        speeds_mps: 0.15..0.8,
     }
+    .into_scenario(&mut rng)
 }
 
 /// The start and two to four waypoints, each leg 1.5 m or longer, within the path margin.
@@ -188,17 +166,12 @@ fn distance_to_path(path: &[[f64; 3]], point: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::drawn_walk::assert_every_seed_draws_the_same_valid_scene;
+    use crate::trajectory::Trajectory;
 
     #[test]
     fn every_seed_draws_a_valid_room_the_same_way_each_time() {
-        for seed in 0..200 {
-            let scenario = random_room(seed);
-            scenario
-                .validate()
-                .unwrap_or_else(|e| panic!("seed {seed}: {e}"));
-            assert_eq!(scenario, random_room(seed), "seed {seed}");
-        }
-        assert_ne!(random_room(1), random_room(2));
+        assert_every_seed_draws_the_same_valid_scene(random_room);
     }
 
     #[test]
