@@ -238,6 +238,17 @@ impl Verdict {
         }
     }
 
+    /// Usable in half the messages or more, and honest.
+    fn assert_usable_and_honest(&self, label: &str) {
+        assert!(
+            self.valid * 2 >= self.messages,
+            "{label}: usable in only {} of {} messages",
+            self.valid,
+            self.messages
+        );
+        self.assert_honest(label);
+    }
+
     fn assert_honest(&self, label: &str) {
         for axis in 0..3 {
             assert!(
@@ -442,14 +453,7 @@ fn started_late_in_a_random_room_the_plane_map_takes_over_usable_and_honest() {
     for (seed, start_s) in [(5, 21.8), (9, 31.2)] {
         let name = format!("random-room-{seed}");
         let run = fly(&Trial::new(&name, seed, start_s).measured_by(OdometryMethod::Map));
-        let verdict = Verdict::of(&run);
-        assert!(
-            verdict.valid * 2 >= verdict.messages,
-            "{name} from {start_s} s: usable in only {} of {} messages",
-            verdict.valid,
-            verdict.messages
-        );
-        verdict.assert_honest(&name);
+        Verdict::of(&run).assert_usable_and_honest(&format!("{name} from {start_s} s"));
     }
 }
 
@@ -474,12 +478,7 @@ fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
             trial.seed,
             serde_json::to_string(&verdict).unwrap()
         );
-        assert!(
-            verdict.valid * 2 >= verdict.messages,
-            "seed {}: {verdict:?}",
-            trial.seed
-        );
-        verdict.assert_honest(&format!("bare-corridor at 10 Hz, seed {}", trial.seed));
+        verdict.assert_usable_and_honest(&format!("bare-corridor at 10 Hz, seed {}", trial.seed));
     }
 }
 
@@ -504,14 +503,7 @@ fn a_corridor_walked_down_and_back_is_honest() {
         .collect();
     for (trial, run) in trials.iter().zip(fly_all(&trials)) {
         let label = format!("{}, {:?}", trial.scenario.name, trial.method);
-        let verdict = Verdict::of(&run);
-        assert!(
-            verdict.valid * 2 >= verdict.messages,
-            "{label}: usable in only {} of {} messages",
-            verdict.valid,
-            verdict.messages
-        );
-        verdict.assert_honest(&label);
+        Verdict::of(&run).assert_usable_and_honest(&label);
     }
 }
 

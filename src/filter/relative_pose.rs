@@ -272,9 +272,9 @@ impl RelativePoseMeasurement {
 ///   takes the observed part only (`sure_lever` says when it takes it all). That estimate is
 ///   the dead-reckoned velocity, wrong by as much as it is uncertain and correlated with the
 ///   tilt error that drives it; as a lever it let the floor's row "measure" the tilt through a
-///   motion nobody measured, and on the bare corridor
-///   the pitch and the accelerometer bias moved together until the filter reported the
-///   velocity along the corridor to 0.5 m/s while it was 1.7 m/s wrong (mean NEES 3-5;
+///   motion nobody measured, and on the bare corridor the pitch and the accelerometer bias
+///   moved together until the filter reported the velocity along the corridor to 0.5 m/s while
+///   it was 1.7 m/s wrong (mean NEES 3-5;
 ///   `eskf_tests::a_corridor_leaves_the_velocity_along_it_honestly_uncertain`).
 ///
 /// Both are `E[[x]x P [x]x^T]` over a motion `x` taken independent of the attitude error,
@@ -324,12 +324,8 @@ fn sure_lever(
     motion_error: &Matrix3<f64>,
 ) -> Vector3<f64> {
     let free = motion - observed_motion;
-    let length_squared = free.norm_squared();
-    if length_squared == 0.0 {
-        return *observed_motion;
-    }
-    let variance_along = free.dot(&(motion_error * free)) / length_squared;
-    if length_squared >= SURE_LEVER_SIGMAS.powi(2) * variance_along {
+    // |free|^2 >= k^2 (its variance along itself), both sides times |free|^2.
+    if free.norm_squared().powi(2) >= SURE_LEVER_SIGMAS.powi(2) * free.dot(&(motion_error * free)) {
         *motion
     } else {
         *observed_motion
