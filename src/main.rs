@@ -91,8 +91,9 @@ enum Command {
     /// driver's emulator exactly as a live run records it, with /truth.
     Simulate {
         /// A built-in scenario (paper-sim, office-door, hallway-hover, hallway-flight,
-        /// bare-corridor, open-room, hall-walk, or random-room-N: a room drawn from seed N) or a
-        /// scenario file like those in data/scenarios.
+        /// bare-corridor, board-corridor, open-room, hall-walk, random-room-N or
+        /// random-corridor-N: a room or a corridor drawn from seed N) or a scenario file like
+        /// those in data/scenarios.
         #[arg(long, value_name = "NAME|FILE")]
         scenario: String,
         /// The recording to write.

@@ -613,6 +613,11 @@ fn honesty_studies() -> Vec<(&'static str, Vec<Trial>)> {
             "bare-corridor started in motion",
             starts_in_motion("bare-corridor", 20, 230.0, 30.0),
         ),
+        ("board-corridor", still("board-corridor")),
+        (
+            "board-corridor started in motion",
+            starts_in_motion("board-corridor", 20, 230.0, 30.0),
+        ),
         ("open-room", still("open-room")),
         (
             "open-room started in motion",
@@ -646,6 +651,18 @@ fn study_bare_corridor_20_runs() {
 #[ignore = "release-mode study (docs/autopilot.md)"]
 fn study_bare_corridor_started_in_motion_20_runs() {
     honesty_study("bare-corridor started in motion");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_board_corridor_20_runs() {
+    honesty_study("board-corridor");
+}
+
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_board_corridor_started_in_motion_20_runs() {
+    honesty_study("board-corridor started in motion");
 }
 
 #[test]

@@ -462,9 +462,49 @@ pub(crate) fn paper_rig_scanners() -> Vec<ScannerConfig> {
 /// pitch. Only the side walls make planes, so the motion along the corridor is unobservable
 /// for most epochs: the test of a filter that must say so.
 pub(crate) fn bare_corridor() -> Scenario {
+    let mut scenario = walked_corridor("bare-corridor");
+    scenario.scene.add_box(
+        "cabinet",
+        [12.0, -0.9, 0.7],
+        [0.3, 0.2, 0.5],
+        0.0,
+        Motion::Static,
+    );
+    scenario
+}
+
+/// The bare corridor without its cabinet, and instead a 0.6 x 1.2 m board carried to and fro
+/// along it beside the walk, square to the corridor: from x = 16 to 8 and back, six times, 40 s
+/// each from t = 20 s (up to 0.63 m/s). Wherever the board is seen it is the only surface that
+/// faces along the corridor, so nothing but the filter's prediction can tell that it moves.
+pub(crate) fn board_corridor() -> Scenario {
+    let mut scenario = walked_corridor("board-corridor");
+    scenario.scene.patches.push(
+        Patch::new(
+            "board",
+            [16.0, 0.55, 0.4],
+            [0.0, 1.0, 0.0],
+            [0.0, 0.0, 1.0],
+            [0.3, 0.6],
+        )
+        .with_motion(Motion::Translate {
+            direction: [-1.0, 0.0, 0.0],
+            distance_m: Profile::Swing {
+                start_s: 20.0,
+                period_s: 40.0,
+                cycles: 6,
+                amplitude: 8.0,
+            },
+        }),
+    );
+    scenario
+}
+
+/// The bare corridor's walls, rig and walk, with nothing in it.
+fn walked_corridor(name: &str) -> Scenario {
     let (ceiling, floor) = (-1.3, 1.2);
     let (back_x, end_x) = (-3.0, 27.0);
-    let mut scene = Scene {
+    let scene = Scene {
         patches: vec![
             slab("floor", [back_x, end_x], [-1.1, 1.1], floor),
             slab("ceiling", [back_x, end_x], [-1.1, 1.1], ceiling),
@@ -474,15 +514,8 @@ pub(crate) fn bare_corridor() -> Scenario {
             wall("back-wall", [back_x, -1.1], [back_x, 1.1], ceiling, floor),
         ],
     };
-    scene.add_box(
-        "cabinet",
-        [12.0, -0.9, 0.7],
-        [0.3, 0.2, 0.5],
-        0.0,
-        Motion::Static,
-    );
     Scenario {
-        name: "bare-corridor".into(),
+        name: name.into(),
         seed: 5,
         duration_s: 260.0,
         truth_rate_hz: 50.0,

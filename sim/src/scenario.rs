@@ -9,19 +9,20 @@ use super::{random_corridor, random_room};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-pub const BUILTIN_NAMES: [&str; 7] = [
+pub const BUILTIN_NAMES: [&str; 8] = [
     "paper-sim",
     "office-door",
     "hallway-hover",
     "hallway-flight",
     "bare-corridor",
+    "board-corridor",
     "open-room",
     "hall-walk",
 ];
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ScenarioError {
-    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file")]
+    #[error("unknown scenario \"{0}\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, board-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file")]
     UnknownName(String),
     #[error("cannot read scenario file {path}: {reason}")]
     Unreadable { path: String, reason: String },
@@ -75,6 +76,7 @@ impl Scenario {
             "hallway-hover" => Ok(builtin::hallway_hover()),
             "hallway-flight" => Ok(builtin::hallway_flight()),
             "bare-corridor" => Ok(builtin::bare_corridor()),
+            "board-corridor" => Ok(builtin::board_corridor()),
             "open-room" => Ok(builtin::open_room()),
             "hall-walk" => Ok(builtin::hall_walk()),
             _ => {
@@ -200,7 +202,7 @@ mod tests {
         let err = Scenario::builtin("foo").unwrap_err();
         assert_eq!(
             err.to_string(),
-            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file"
+            "unknown scenario \"foo\": choose one of paper-sim, office-door, hallway-hover, hallway-flight, bare-corridor, board-corridor, open-room, hall-walk, random-room-N or random-corridor-N (N any whole number), or give a .toml file"
         );
         assert!(matches!(
             Scenario::resolve("foo"),
