@@ -379,24 +379,16 @@ pub(crate) fn hallway_hover() -> Scenario {
             amplitude: 90.0,
         },
     );
-    scene.patches.push(
-        Patch::new(
-            "board",
-            [5.0, 0.2, 0.55],
-            [0.0, 1.0, 0.0],
-            [0.0, 0.0, 1.0],
-            [0.3, 0.45],
-        )
-        .with_motion(Motion::Translate {
-            direction: [-1.0, 0.0, 0.0],
-            distance_m: Profile::Swing {
-                start_s: 300.0,
-                period_s: 19.0,
-                cycles: 10,
-                amplitude: 4.0,
-            },
-        }),
-    );
+    scene.patches.push(board_carried_back_along_x(
+        [5.0, 0.2, 0.55],
+        [0.3, 0.45],
+        Profile::Swing {
+            start_s: 300.0,
+            period_s: 19.0,
+            cycles: 10,
+            amplitude: 4.0,
+        },
+    ));
     Scenario {
         name: "hallway-hover".into(),
         seed: 3,
@@ -479,25 +471,37 @@ pub(crate) fn bare_corridor() -> Scenario {
 /// faces along the corridor, so nothing but the filter's prediction can tell that it moves.
 pub(crate) fn board_corridor() -> Scenario {
     let mut scenario = walked_corridor("board-corridor");
-    scenario.scene.patches.push(
-        Patch::new(
-            "board",
-            [16.0, 0.55, 0.4],
-            [0.0, 1.0, 0.0],
-            [0.0, 0.0, 1.0],
-            [0.3, 0.6],
-        )
-        .with_motion(Motion::Translate {
-            direction: [-1.0, 0.0, 0.0],
-            distance_m: Profile::Swing {
-                start_s: 20.0,
-                period_s: 40.0,
-                cycles: 6,
-                amplitude: 8.0,
-            },
-        }),
-    );
+    scenario.scene.patches.push(board_carried_back_along_x(
+        [16.0, 0.55, 0.4],
+        [0.3, 0.6],
+        Profile::Swing {
+            start_s: 20.0,
+            period_s: 40.0,
+            cycles: 6,
+            amplitude: 8.0,
+        },
+    ));
     scenario
+}
+
+/// A board square to x, centred at `centre` with `half_extents_m` (across, up), carried
+/// towards -x by `distance` metres.
+fn board_carried_back_along_x(
+    centre: [f64; 3],
+    half_extents_m: [f64; 2],
+    distance: Profile,
+) -> Patch {
+    Patch::new(
+        "board",
+        centre,
+        [0.0, 1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        half_extents_m,
+    )
+    .with_motion(Motion::Translate {
+        direction: [-1.0, 0.0, 0.0],
+        distance_m: distance,
+    })
 }
 
 /// The bare corridor's walls, rig and walk, with nothing in it.
