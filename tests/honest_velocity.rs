@@ -95,14 +95,16 @@ impl Trial {
     }
 
     /// The scene `{prefix}{seed}`, started still for even seeds and in motion 20-40 s in for
-    /// odd ones.
+    /// odd ones, its sensors' noise drawn from `seed` or, with `HONEST_NOISE_DRAW=k`, from the
+    /// k-th other draw.
     fn drawn(prefix: &str, seed: u64) -> Self {
         let start_s = if seed.is_multiple_of(2) {
             0.0
         } else {
             20.0 + 20.0 * (seed as f64 * 0.618_034).fract()
         };
-        Self::new(&format!("{prefix}{seed}"), seed, start_s)
+        let noise_seed = seed + NOISE_DRAW_STRIDE * study_noise_draw();
+        Self::new(&format!("{prefix}{seed}"), noise_seed, start_s)
     }
 
     fn until(mut self, end_s: f64) -> Self {
@@ -868,6 +870,19 @@ fn drawn_scenes(prefix: &str, method: OdometryMethod) {
         dishonest.len() * 20 <= trials.len(),
         "not honest in {dishonest:?}"
     );
+}
+
+/// Apart from the drawn scenes' seeds, so that no draw of one scene's noise is another's.
+const NOISE_DRAW_STRIDE: u64 = 1_000_000;
+
+/// Which draw of the sensors' noise the drawn scenes fly: 0 (their own seed), or the one
+/// `HONEST_NOISE_DRAW` names. A scene honest on one draw may not be on another: one unlucky
+/// draw of the gyro's noise is what makes `random-corridor-32` dishonest (docs/autopilot.md).
+fn study_noise_draw() -> u64 {
+    std::env::var("HONEST_NOISE_DRAW").map_or(0, |draw| {
+        draw.parse()
+            .expect("HONEST_NOISE_DRAW: which draw of the noise, a whole number such as 1")
+    })
 }
 
 /// The seeds of the drawn scenes: 1-20, or the range `HONEST_SEEDS` names (`21-60`).
