@@ -201,7 +201,10 @@ impl Fusion {
             record.outcome = EpochOutcome::Reference;
             return Vec::new();
         };
-        let mut epoch = self.odometer.solve(previous, current, &prior);
+        let doubt_prior = self.doubt_prior(&prior, previous.t_ref, current.t_ref);
+        let mut epoch = self
+            .odometer
+            .solve_doubting_under(previous, current, &prior, &doubt_prior);
         let buildings =
             [previous, current].map(|planes| self.odometer.config().building(planes.down));
         let wandering = self
@@ -368,7 +371,7 @@ impl Fusion {
             excluded,
             limits.lone_plane_min_extent_m,
             self.odometer.config().building(previous.down),
-            &epoch.prior,
+            &self.doubt_prior(&epoch.prior, previous.t_ref, current.t_ref),
         )
         .checked(
             rotation,
@@ -388,10 +391,7 @@ impl Fusion {
         [t_previous, t]: [f64; 2],
         surprised: bool,
     ) {
-        let to_navigation = self
-            .filter
-            .pose_at_or_after(t_previous)
-            .map_or(self.filter.state().q, |pose| pose.q);
+        let to_navigation = self.navigation_axes_at(t_previous);
         let rotation = cleared
             .rotation
             .as_ref()
@@ -407,6 +407,21 @@ impl Fusion {
             surprised,
             t,
         );
+    }
+
+    /// The attitude that turns body axes at `t` into navigation axes.
+    fn navigation_axes_at(&self, t: f64) -> UnitQuaternion<f64> {
+        self.filter
+            .pose_at_or_after(t)
+            .map_or(self.filter.state().q, |pose| pose.q)
+    }
+
+    /// The prior a pairing of the planes from `t_previous` to `t` is doubted under: the
+    /// filter's, vaguer along what it holds in doubt (`witnesses::Provisional::widened`).
+    fn doubt_prior(&self, prior: &RelativePose, t_previous: f64, t: f64) -> RelativePose {
+        let to_navigation = self.navigation_axes_at(t_previous);
+        self.provisional
+            .widened(prior, &to_navigation, t - t_previous)
     }
 
     /// A filter that lost its convergence restarted: what it held provisional went with the

@@ -40,25 +40,33 @@ impl Matcher {
     /// 1 cm), which taught the filter a vertical velocity 1.3 m/s off that it then sent with a
     /// sigma of 1 cm/s. So the matches left in no doubt refine the prior and the planes are
     /// paired again under it; a match still in doubt is kept only if another surface facing
-    /// the same way corroborates it (`is_corroborated`), and left out otherwise.
+    /// the same way corroborates it (`is_corroborated`), and left out otherwise. Doubt is
+    /// judged under `doubt_prior`, as wide as `prior` or wider where `prior` is only a doubtful
+    /// plane's word (`fusion::witnesses`): the planes are paired as `prior` pairs them, but a
+    /// pairing a vaguer prior would have let either plane make with another surface is in
+    /// doubt.
     pub(crate) fn match_planes(
         &mut self,
         previous: &[Plane],
         current: &[Plane],
-        prior: &RelativePose,
+        [prior, doubt_prior]: [&RelativePose; 2],
         gates: &MatchGates,
         out: &mut Vec<PlaneMatch>,
     ) {
+        let wider = (doubt_prior != prior).then_some(doubt_prior);
         self.assign(previous, current, prior, gates, out);
-        if self.mark_doubtful(previous, current, out) {
-            let certain = out
+        if self.mark_doubtful(previous, current, wider, gates, out) {
+            let certain: Vec<PlaneMatch> = out
                 .iter()
                 .zip(&self.doubtful)
                 .filter(|(_, doubtful)| !**doubtful)
-                .map(|(m, _)| m);
-            if let Some(refined) = refined_prior(prior, previous, current, certain) {
+                .map(|(m, _)| *m)
+                .collect();
+            if let Some(refined) = refined_prior(prior, previous, current, certain.iter()) {
+                let refined_doubt =
+                    wider.and_then(|p| refined_prior(p, previous, current, certain.iter()));
                 self.assign(previous, current, &refined, gates, out);
-                self.mark_doubtful(previous, current, out);
+                self.mark_doubtful(previous, current, refined_doubt.as_ref(), gates, out);
             }
             for (m, doubtful) in out.iter().zip(self.doubtful.iter_mut()) {
                 *doubtful = *doubtful && !is_corroborated(m, out, previous, current);
@@ -79,6 +87,32 @@ impl Matcher {
         out: &mut Vec<PlaneMatch>,
     ) {
         out.clear();
+        self.collect(previous, current, prior, gates);
+        self.candidates
+            .sort_unstable_by(|a, b| a.distance_squared.total_cmp(&b.distance_squared));
+        self.taken[0].clear();
+        self.taken[0].resize(previous.len(), false);
+        self.taken[1].clear();
+        self.taken[1].resize(current.len(), false);
+        for candidate in &self.candidates {
+            if self.taken[0][candidate.previous] || self.taken[1][candidate.current] {
+                continue;
+            }
+            self.taken[0][candidate.previous] = true;
+            self.taken[1][candidate.current] = true;
+            out.push(*candidate);
+        }
+    }
+
+    /// The pairs `prior` admits (`candidates`), and those that fit the distance and face the
+    /// same way but that the normal gate refused (`rivals`).
+    fn collect(
+        &mut self,
+        previous: &[Plane],
+        current: &[Plane],
+        prior: &RelativePose,
+        gates: &MatchGates,
+    ) {
         self.candidates.clear();
         self.rivals.clear();
         for (i, plane_i) in previous.iter().enumerate() {
@@ -101,29 +135,21 @@ impl Matcher {
                 }
             }
         }
-        self.candidates
-            .sort_unstable_by(|a, b| a.distance_squared.total_cmp(&b.distance_squared));
-        self.taken[0].clear();
-        self.taken[0].resize(previous.len(), false);
-        self.taken[1].clear();
-        self.taken[1].resize(current.len(), false);
-        for candidate in &self.candidates {
-            if self.taken[0][candidate.previous] || self.taken[1][candidate.current] {
-                continue;
-            }
-            self.taken[0][candidate.previous] = true;
-            self.taken[1][candidate.current] = true;
-            out.push(*candidate);
-        }
     }
 
-    /// Marks which of `matches` are in doubt; returns whether any is.
+    /// Marks which of `matches` are in doubt under the pairs their prior admitted, or under
+    /// those a `wider` prior admits; returns whether any is.
     fn mark_doubtful(
         &mut self,
         previous: &[Plane],
         current: &[Plane],
+        wider: Option<&RelativePose>,
+        gates: &MatchGates,
         matches: &[PlaneMatch],
     ) -> bool {
+        if let Some(prior) = wider {
+            self.collect(previous, current, prior, gates);
+        }
         let (candidates, rivals) = (&self.candidates, &self.rivals);
         self.doubtful.clear();
         self.doubtful.extend(matches.iter().map(|m| {
@@ -334,7 +360,7 @@ mod tests {
             normal_chi2: 13.82,
         };
         let mut out = Vec::new();
-        Matcher::default().match_planes(previous, current, prior, &gates, &mut out);
+        Matcher::default().match_planes(previous, current, [prior, prior], &gates, &mut out);
         out
     }
 

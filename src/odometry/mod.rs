@@ -710,11 +710,23 @@ impl Odometer {
         current: &EpochPlanes,
         prior: &RelativePose,
     ) -> OdometryEpoch {
+        self.solve_doubting_under(previous, current, prior, prior)
+    }
+
+    /// As `solve`, a pairing in doubt under `doubt_prior`: a prior vaguer along directions
+    /// where `prior` is only a doubtful plane's word (`fusion::witnesses`).
+    pub fn solve_doubting_under(
+        &mut self,
+        previous: &EpochPlanes,
+        current: &EpochPlanes,
+        prior: &RelativePose,
+        doubt_prior: &RelativePose,
+    ) -> OdometryEpoch {
         let mut matches = Vec::new();
         self.matcher.match_planes(
             &previous.planes,
             &current.planes,
-            prior,
+            [prior, doubt_prior],
             &self.config.match_gates(),
             &mut matches,
         );

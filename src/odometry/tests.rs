@@ -542,7 +542,7 @@ proptest! {
         let prior = prior_from(&i, &j, 0.01, 0.05);
         let mut matches = Vec::new();
         let gates = OdometryConfig::default().match_gates();
-        Matcher::default().match_planes(&previous.planes, &current.planes, &prior, &gates, &mut matches);
+        Matcher::default().match_planes(&previous.planes, &current.planes, [&prior, &prior], &gates, &mut matches);
         let label_i: Vec<_> = previous.planes.iter().map(|p| room_plane_of(&room, &i, p, 1e-9)).collect();
         let label_j: Vec<_> = current.planes.iter().map(|p| room_plane_of(&room, &j, p, 1e-9)).collect();
         prop_assert!(label_i.iter().chain(&label_j).all(Option::is_some), "{:?} {:?} {:?} {:?}", label_i, label_j, previous.planes, current.planes);
