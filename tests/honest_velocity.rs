@@ -289,6 +289,13 @@ fn unexplained_step(pair: &[Message]) -> f64 {
     (pair[1].position - pair[0].position - travelled).norm()
 }
 
+/// How many valid messages lie outside 3 reported sigmas on some axis.
+fn usable_outside_3_sigma(run: &[Message]) -> usize {
+    run.iter()
+        .filter(|m| m.valid() && m.normalised().amax() > 3.0)
+        .count()
+}
+
 /// Seconds from the start (or from `after_s`) to the first valid message.
 fn first_valid_after(messages: &[Message], after_s: f64) -> Option<f64> {
     messages
@@ -531,10 +538,7 @@ fn a_person_walking_ahead_after_a_start_in_motion_is_not_taken_for_a_wall() {
         .map(|method| Trial::drawn("random-corridor-", 25).measured_by(method))
         .into();
     for (trial, run) in trials.iter().zip(fly_all(&trials)) {
-        let wrong = run
-            .iter()
-            .filter(|m| m.valid() && m.normalised().amax() > 3.0)
-            .count();
+        let wrong = usable_outside_3_sigma(&run);
         assert_eq!(wrong, 0, "{:?}: {:?}", trial.method, Verdict::of(&run));
     }
 }
@@ -561,10 +565,7 @@ fn a_surface_paired_with_another_after_a_start_in_motion_teaches_no_usable_wrong
         })
         .collect();
     for (trial, run) in trials.iter().zip(fly_all(&trials)) {
-        let wrong = run
-            .iter()
-            .filter(|m| m.valid() && m.normalised().amax() > 3.0)
-            .count();
+        let wrong = usable_outside_3_sigma(&run);
         let verdict = Verdict::of(&run);
         let label = format!("noise seed {}, {:?}: {verdict:?}", trial.seed, trial.method);
         assert_eq!(wrong, 0, "{label}");

@@ -881,17 +881,24 @@ fn an_impossible_speed_restarts_the_navigation_state_where_it_stands() {
     assert!(sigmas[state::VEL] >= FilterConfig::default().moving_start_sigma_velocity_mps);
 }
 
-/// A tilt the filter got wrong turns gravity into an acceleration nothing stops; the restart
-/// that the speed then forces must not keep that tilt, or it diverges again at once.
-#[test]
-fn a_restart_after_a_divergence_levels_its_tilt_from_the_recent_specific_force() {
+/// A body standing still, and a filter started on it with its tilt 0.13 rad off: gravity runs
+/// the estimate away until the speed guard restarts it.
+fn still_body_tilted_estimate() -> (Stationary, Eskf) {
     let truth = Stationary {
         q: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7),
     };
     let tilted = Stationary {
         q: UnitQuaternion::from_euler_angles(0.04, -0.12, 0.7),
     };
-    let mut filter = start_at_truth(FilterConfig::default(), &tilted, 0.0);
+    let filter = start_at_truth(FilterConfig::default(), &tilted, 0.0);
+    (truth, filter)
+}
+
+/// A tilt the filter got wrong turns gravity into an acceleration nothing stops; the restart
+/// that the speed then forces must not keep that tilt, or it diverges again at once.
+#[test]
+fn a_restart_after_a_divergence_levels_its_tilt_from_the_recent_specific_force() {
+    let (truth, mut filter) = still_body_tilted_estimate();
     let outcomes: Vec<_> = truth
         .imu_samples(0.01, 12.0, 100.0, false)
         .iter()
@@ -915,13 +922,7 @@ fn a_restart_after_a_divergence_levels_its_tilt_from_the_recent_specific_force()
 /// levelling went into the gyro bias at the restart's wide prior (`random-corridor-49`).
 #[test]
 fn a_restart_levels_the_stored_poses_with_the_estimate() {
-    let truth = Stationary {
-        q: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7),
-    };
-    let tilted = Stationary {
-        q: UnitQuaternion::from_euler_angles(0.04, -0.12, 0.7),
-    };
-    let mut filter = start_at_truth(FilterConfig::default(), &tilted, 0.0);
+    let (truth, mut filter) = still_body_tilted_estimate();
     let samples = truth.imu_samples(0.01, 12.0, 100.0, false);
     let restart = samples
         .iter()
