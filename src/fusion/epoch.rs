@@ -215,7 +215,13 @@ impl Fusion {
         }
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
-        let cleared = self.clear(previous, current, &epoch, &report, anchored.as_ref());
+        let cleared = self.clear(
+            [previous, current],
+            &epoch,
+            &doubt_prior,
+            &report,
+            anchored.as_ref(),
+        );
         let scale = self.config.measurement_covariance_scale;
         let mut measurement = measurement(previous.t_ref, current.t_ref, &cleared, scale);
         let mut noise_maps = Vec::new();
@@ -305,9 +311,9 @@ impl Fusion {
     /// under-determined epoch). Without: every solve that succeeded, with all planes.
     fn clear(
         &self,
-        previous: &EpochPlanes,
-        current: &EpochPlanes,
+        [previous, current]: [&EpochPlanes; 2],
         epoch: &OdometryEpoch,
+        doubt_prior: &RelativePose,
         report: &EpochReport,
         anchored: Option<&Anchored>,
     ) -> Cleared {
@@ -333,9 +339,8 @@ impl Fusion {
         };
         let (rotation, displacement) = (part(&report.rotation), part(&report.displacement));
         let lone = self.checked_lone_witnesses(
-            previous,
-            current,
-            epoch,
+            [previous, current],
+            (epoch, doubt_prior),
             &epoch.excluding(&report.excluded),
             [rotation.as_ref(), displacement.as_ref()],
         );
@@ -355,12 +360,12 @@ impl Fusion {
     }
 
     /// The directions that one plane alone faces, each checked by the filter's prediction
-    /// (`witnesses`), of the cleared `[rotation, displacement]`.
+    /// (`witnesses`), of the cleared `[rotation, displacement]`; whether a static surface's
+    /// pairing is sure is judged under the prior the pairings were doubted under.
     fn checked_lone_witnesses(
         &self,
-        previous: &EpochPlanes,
-        current: &EpochPlanes,
-        epoch: &OdometryEpoch,
+        [previous, current]: [&EpochPlanes; 2],
+        (epoch, doubt_prior): (&OdometryEpoch, &RelativePose),
         excluded: &[usize],
         [rotation, displacement]: [Option<&Solution>; 2],
     ) -> CheckedLone {
@@ -371,7 +376,7 @@ impl Fusion {
             excluded,
             limits.lone_plane_min_extent_m,
             self.odometer.config().building(previous.down),
-            &self.doubt_prior(&epoch.prior, previous.t_ref, current.t_ref),
+            doubt_prior,
         )
         .checked(
             rotation,

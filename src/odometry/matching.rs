@@ -29,6 +29,8 @@ pub(crate) struct Matcher {
     taken: [Vec<bool>; 2],
     /// Which matches of the assignment are in doubt (`is_ambiguous`).
     doubtful: Vec<bool>,
+    /// The matches of the assignment left in no doubt.
+    certain: Vec<PlaneMatch>,
 }
 
 impl Matcher {
@@ -56,12 +58,14 @@ impl Matcher {
         let wider = (doubt_prior != prior).then_some(doubt_prior);
         self.assign(previous, current, prior, gates, out);
         if self.mark_doubtful(previous, current, wider, gates, out) {
-            let certain: Vec<PlaneMatch> = out
-                .iter()
-                .zip(&self.doubtful)
-                .filter(|(_, doubtful)| !**doubtful)
-                .map(|(m, _)| *m)
-                .collect();
+            self.certain.clear();
+            self.certain.extend(
+                out.iter()
+                    .zip(&self.doubtful)
+                    .filter(|(_, doubtful)| !**doubtful)
+                    .map(|(m, _)| *m),
+            );
+            let certain = &self.certain;
             if let Some(refined) = refined_prior(prior, previous, current, certain.iter()) {
                 let refined_doubt =
                     wider.and_then(|p| refined_prior(p, previous, current, certain.iter()));
