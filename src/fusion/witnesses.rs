@@ -47,8 +47,13 @@ impl LoneWitnesses {
     /// Of the matches not in `excluded` (indices past `matches` are anchors: not planes),
     /// leaving out the directions of lone planes taken for static: crossing ones with a line of
     /// `min_extent_m` or more, and level crossing ones in a `building`. A static surface
-    /// vouches for the displacement along its normal only where the match `prior` left no
-    /// room for another surface facing the same way (`SURE_MATCH_SIGMA_M`).
+    /// vouches for the displacement along its normal, and for the rotation it alone sees,
+    /// only where the match `prior` left no room for another surface facing the same way
+    /// (`SURE_MATCH_SIGMA_M`). Under a wider prior the attitude is vague too, and a plane
+    /// joining a floor line to a line on a wall far ahead passes for level: its slope changes
+    /// as the platform closes on the wall, so its relative pitch is wrong by milliradians at a
+    /// sigma of hundredths. Trusted, it taught `random-corridor-29` (started in motion) a
+    /// pitch-rate bias 1.6 mrad/s off.
     pub(super) fn of(
         previous: &EpochPlanes,
         matches: &[PlaneMatch],
@@ -79,7 +84,9 @@ impl LoneWitnesses {
             })
             .collect();
         Self {
-            rotation: lone(&witnesses, rotation_geometry, |w| w.static_surface),
+            rotation: lone(&witnesses, rotation_geometry, |w| {
+                w.static_surface && w.surely_matched
+            }),
             displacement: lone(&witnesses, displacement_geometry, |w| {
                 w.static_surface && w.surely_matched
             }),
@@ -674,6 +681,59 @@ mod tests {
         let lone = lone_floor(0.6);
         assert_eq!(lone.len(), 1);
         assert!(lone[0].z.abs() > 0.99, "{lone:?}");
+    }
+
+    #[test]
+    fn a_lone_floor_matched_under_a_wide_prior_is_checked_for_the_pitch_too() {
+        use crate::odometry::planes::{LineRef, Plane};
+        use crate::odometry::uncertainty::PlaneUncertainty;
+        let surface = |normal: Vector3<f64>, rho: f64| Plane {
+            crossing: true,
+            normal_assumed: false,
+            ..Plane::through_one_line(
+                LineRef {
+                    scanner: 0,
+                    segment: 0,
+                },
+                normal,
+                rho,
+                PlaneUncertainty {
+                    normal_covariance: Matrix3::zeros(),
+                    sigma_normal: 0.001,
+                    sigma_rho: 0.004,
+                },
+                3.0,
+            )
+        };
+        let previous = EpochPlanes {
+            planes: vec![
+                surface(Vector3::y(), 0.8),
+                surface(-Vector3::y(), 0.8),
+                surface(Vector3::z(), 1.2),
+            ],
+            ..EpochPlanes::default()
+        };
+        let matches: Vec<PlaneMatch> = (0..3)
+            .map(|k| PlaneMatch {
+                previous: k,
+                current: k,
+                distance_squared: 0.0,
+            })
+            .collect();
+        let building = Some(Building {
+            down: Vector3::z(),
+            max_tilt_rad: 0.05,
+        });
+        let lone_rotation = |prior_sigma_m: f64| {
+            let prior = RelativePose::stationary(0.001, prior_sigma_m);
+            LoneWitnesses::of(&previous, &matches, &[], 1.5, building, &prior).rotation
+        };
+        assert!(lone_rotation(0.01).is_empty());
+        // Started in motion, the one plane that sees the pitch may be a floor line joined to
+        // a wall line far ahead, a plane that tilts as the platform closes on the wall.
+        let lone = lone_rotation(0.6);
+        assert_eq!(lone.len(), 1);
+        assert!(lone[0].y.abs() > 0.99, "{lone:?}");
     }
 
     #[test]
