@@ -511,19 +511,22 @@ fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
 /// and 0.85 of the usable messages inside 3 sigma, mean NEES 9 and 2.2 (docs/autopilot.md,
 /// "Corridors nobody tuned on"). That motion, known surely, is now the lever of the attitude
 /// error in the Jacobian (`relative_pose::sure_lever`). The plane map was honest on both.
+/// Each is judged on six draws of its noise, pooled: one draw alone is a roll of the dice at
+/// this threshold (on the pairs, corridor 10's draw 2 had a mean NEES of 2.2 when its draw 0
+/// had 1.2, and the start's accelerometer sway swapped the two).
 #[test]
 fn a_corridor_walked_down_and_back_is_honest() {
-    let trials: Vec<Trial> = [OdometryMethod::Pairs, OdometryMethod::Map]
-        .into_iter()
-        .flat_map(|method| {
-            [4, 10].map(|seed| {
-                Trial::new(&format!("random-corridor-{seed}"), seed, 0.0).measured_by(method)
-            })
-        })
-        .collect();
-    for (trial, run) in trials.iter().zip(fly_all(&trials)) {
-        let label = format!("{}, {:?}", trial.scenario.name, trial.method);
-        Verdict::of(&run).assert_usable_and_honest(&label);
+    for method in [OdometryMethod::Pairs, OdometryMethod::Map] {
+        for seed in [4, 10] {
+            let trials: Vec<Trial> = (0..6)
+                .map(|draw| {
+                    let name = format!("random-corridor-{seed}");
+                    Trial::new(&name, seed + draw * NOISE_DRAW_STRIDE, 0.0).measured_by(method)
+                })
+                .collect();
+            Verdict::pooled(&fly_all(&trials))
+                .assert_usable_and_honest(&format!("random-corridor-{seed}, {method:?}"));
+        }
     }
 }
 
