@@ -103,6 +103,19 @@ pub struct FilterConfig {
     /// acceleration the velocity sigma did not cover (docs/accuracy.md, "The stationary
     /// start's gyro bias").
     pub still_sway_rate_sigma: f64,
+    /// Acceleration a platform taken for still may build up unseen, m/s^2: a lift-off or a walk
+    /// that starts gentler than the stillness test (`still_max_force_change_mps2` per window)
+    /// can see. The zero-velocity updates until motion is seen took that acceleration for
+    /// accelerometer bias and tilt, and held the velocity it built at zero: when motion ends
+    /// the stationary start, the accelerometer bias gets this much uncertainty back, and the
+    /// velocity `zupt_velocity_sigma_mps`; 0 gives nothing back. Unset, it is a third of
+    /// `still_max_force_change_mps2` with the pairs and 0 with the plane map, whose lone floor
+    /// cannot yet survive it (docs/autopilot.md, "A walk that starts unseen"). Without it a
+    /// corridor walk that began at 0.04 m/s^2 left the velocity 1 cm/s off at a 3 mm/s sigma
+    /// and the sum of the accelerometer's x bias and the pitch 6 mm/s^2 off, and along the
+    /// corridor, where nothing observes them, the velocity error grew three times as fast as
+    /// its sigma.
+    pub still_sway_force_sigma_mps2: Option<f64>,
     /// Longest IMU interval integrated normally, s; a longer gap marks the filter degraded.
     pub max_imu_gap_s: f64,
     /// Probability of the chi-square innovation gate on the NIS; 1.0 disables the gate.
@@ -206,6 +219,7 @@ impl Default for FilterConfig {
             zupt_interval_s: 0.1,
             zupt_velocity_sigma_mps: 0.01,
             still_sway_rate_sigma: 1.7e-3,
+            still_sway_force_sigma_mps2: None,
             max_imu_gap_s: 0.05,
             gate_probability: 0.9999,
             relative_pose_update: RelativePoseUpdate::Cloned,
@@ -230,6 +244,13 @@ impl Default for FilterConfig {
 }
 
 impl FilterConfig {
+    /// `still_sway_force_sigma_mps2` as set, or a third of the stillness test's threshold: an
+    /// acceleration that stays under the test's change per window for a whole window.
+    pub(crate) fn unseen_start_force_sigma(&self) -> f64 {
+        self.still_sway_force_sigma_mps2
+            .unwrap_or(self.still_max_force_change_mps2 / 3.0)
+    }
+
     /// Every problem of the table, one line each.
     pub(crate) fn validate(&self) -> Result<(), ConfigErrors> {
         ConfigErrors::collect(|errors| self.check(errors))
@@ -312,7 +333,10 @@ impl FilterConfig {
             ("accel_scale_random_walk", self.accel_scale_random_walk),
             ("stationary_start_s", self.stationary_start_s),
         ];
-        for (key, value) in non_negative {
+        let set_non_negative = self
+            .still_sway_force_sigma_mps2
+            .map(|value| ("still_sway_force_sigma_mps2", value));
+        for (key, value) in non_negative.into_iter().chain(set_non_negative) {
             filter.check(
                 value.is_finite() && value >= 0.0,
                 key,

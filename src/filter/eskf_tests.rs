@@ -712,6 +712,45 @@ fn motion_that_ends_the_stationary_start_gives_the_gyro_bias_its_sway_back() {
     assert!(gyro_bias_sigma(&timed_out) < config.still_sway_rate_sigma);
 }
 
+/// The same bump: the zero-velocity updates before it may have taken an acceleration too gentle
+/// to see for accelerometer bias and held the velocity it built at zero, so both get the sway
+/// of an unseen start back, unless it is set to 0 (the plane map's choice).
+#[test]
+fn motion_that_ends_the_stationary_start_gives_the_accelerometer_bias_and_velocity_their_sway_back()
+{
+    use super::state::{ACCEL_BIAS, VEL};
+    let samples = still_with_a_bump(300);
+    let variances_after_the_bump = |sway: Option<f64>| {
+        let mut filter = Eskf::new(FilterConfig {
+            stationary_start_s: 5.0,
+            still_sway_force_sigma_mps2: sway,
+            ..FilterConfig::default()
+        })
+        .unwrap();
+        for sample in &samples {
+            filter.push_imu(sample);
+        }
+        assert_eq!(filter.counters().motion_during_start, 1);
+        filter.sigmas().map(|sigma| sigma * sigma)
+    };
+    let defaults = FilterConfig::default();
+    let force = defaults.still_max_force_change_mps2 / 3.0;
+    let swayed = variances_after_the_bump(None);
+    let kept = variances_after_the_bump(Some(0.0));
+    for k in 0..3 {
+        let bias_given = swayed[ACCEL_BIAS + k] - kept[ACCEL_BIAS + k];
+        assert!(
+            (bias_given / force.powi(2) - 1.0).abs() < 0.1,
+            "axis {k}: {bias_given}"
+        );
+        let velocity_given = swayed[VEL + k] - kept[VEL + k];
+        assert!(
+            velocity_given >= 0.9 * defaults.zupt_velocity_sigma_mps.powi(2),
+            "axis {k}: {velocity_given}"
+        );
+    }
+}
+
 mod hostile_input {
     use super::*;
     use proptest::prelude::*;

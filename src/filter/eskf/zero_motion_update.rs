@@ -42,13 +42,28 @@ impl Eskf {
     }
 
     /// Motion ends the start. It may have begun before the IMU or the odometry could see it, and
-    /// the zero-rate updates since then took it for gyro bias: the bias gets back the
-    /// uncertainty of such an unseen motion (`FilterConfig::still_sway_rate_sigma`). A start
-    /// that runs its full length saw no motion and keeps what it learnt.
+    /// the zero-motion updates since then took its rate for gyro bias, its acceleration for
+    /// accelerometer bias, and held the velocity it built at zero: they get back the
+    /// uncertainty of such an unseen motion (`FilterConfig::still_sway_rate_sigma`,
+    /// `unseen_start_force_sigma`, and `zupt_velocity_sigma_mps` unless that force is 0; added,
+    /// which keeps every correlation valid). A start that runs its full length saw no motion
+    /// and keeps what it learnt.
     fn end_stationary_start(&mut self) {
-        let sway = self.config.still_sway_rate_sigma;
-        for k in 0..3 {
-            self.covariance[(GYRO_BIAS + k, GYRO_BIAS + k)] += sway * sway;
+        let force = self.config.unseen_start_force_sigma();
+        let velocity = if force > 0.0 {
+            self.config.zupt_velocity_sigma_mps
+        } else {
+            0.0
+        };
+        let sways = [
+            (GYRO_BIAS, self.config.still_sway_rate_sigma),
+            (ACCEL_BIAS, force),
+            (VEL, velocity),
+        ];
+        for (at, sway) in sways {
+            for k in 0..3 {
+                self.covariance[(at + k, at + k)] += sway * sway;
+            }
         }
         self.counters.motion_during_start += 1;
         self.zero_motion = None;
