@@ -160,19 +160,17 @@ impl FusionSettings {
         ConfigErrors::collect(|errors| self.check(errors))
     }
 
-    /// The filter's `still_sway_force_sigma_mps2` as set; unset, none on the plane map. There a
-    /// floor seen from one level line is often the only surface facing up, and is fused alone
-    /// only while the prediction knows its offset to 2 cm: the wider start took that past it
-    /// within a second on the hall walk, and a floor left out cannot be checked again
-    /// (docs/autopilot.md, "A walk that starts unseen").
-    pub(crate) fn unseen_start_force_sigma(&self) -> f64 {
-        match (
-            self.filter.still_sway_force_sigma_mps2,
-            self.odometry.method,
-        ) {
-            (None, OdometryMethod::Map) => 0.0,
-            _ => self.filter.unseen_start_force_sigma(),
+    /// The filter's settings as the fusion runs them: with the plane map, an unset
+    /// `still_sway_force_sigma_mps2` is 0. There a floor seen from one level line is often the
+    /// only surface facing up, and is fused alone only while the prediction knows its offset to
+    /// 2 cm: the wider start took that past it within a second on the hall walk, and a floor
+    /// left out cannot be checked again (docs/autopilot.md, "A walk that starts unseen").
+    pub(crate) fn filter_config(&self) -> FilterConfig {
+        let mut filter = self.filter.clone();
+        if self.odometry.method == OdometryMethod::Map {
+            filter.still_sway_force_sigma_mps2.get_or_insert(0.0);
         }
+        filter
     }
 
     /// Adds every problem of the four tables to `errors`.
@@ -215,15 +213,21 @@ mod tests {
     #[test]
     fn an_unseen_start_sways_on_the_pairs_and_not_on_the_map_unless_set() {
         let third = FilterConfig::default().still_max_force_change_mps2 / 3.0;
-        let pairs = settings(OdometryMethod::Pairs, None).unseen_start_force_sigma();
+        let pairs = settings(OdometryMethod::Pairs, None)
+            .filter_config()
+            .unseen_start_force_sigma();
         assert!((pairs - third).abs() < 1e-12, "{pairs}");
         assert_eq!(
-            settings(OdometryMethod::Map, None).unseen_start_force_sigma(),
+            settings(OdometryMethod::Map, None)
+                .filter_config()
+                .unseen_start_force_sigma(),
             0.0
         );
         for method in [OdometryMethod::Pairs, OdometryMethod::Map] {
             assert_eq!(
-                settings(method, Some(0.03)).unseen_start_force_sigma(),
+                settings(method, Some(0.03))
+                    .filter_config()
+                    .unseen_start_force_sigma(),
                 0.03
             );
         }

@@ -109,18 +109,15 @@ pub struct Fusion {
 }
 
 impl Fusion {
-    pub fn new(
-        mut settings: FusionSettings,
-        scanners: [ScannerSetup; 2],
-    ) -> Result<Self, FusionError> {
+    pub fn new(settings: FusionSettings, scanners: [ScannerSetup; 2]) -> Result<Self, FusionError> {
         settings.validate()?;
-        settings.filter.still_sway_force_sigma_mps2 = Some(settings.unseen_start_force_sigma());
+        let filter = Eskf::new(settings.filter_config())?;
         Ok(Self {
             plane_map: plane_map::PlaneMap::new(settings.odometry.map.clone()),
             last_map_epoch: None,
             odometer: Odometer::new(scanners, settings.odometry)?,
             monitor: IntegrityMonitor::new(settings.integrity)?,
-            filter: Eskf::new(settings.filter)?,
+            filter,
             config: settings.fusion,
             scanners,
             pending: [None, None],
