@@ -39,7 +39,9 @@ pub struct FusionConfig {
     /// Baseline, s, of the plane confirmation (`confirmation`): above 1 Hz a plane enters the
     /// solve only if it also matches a plane of the epoch this far back, where a fictitious
     /// plane (two lines of different surfaces) or a slowly turning door has left the match gate.
-    /// Default 1.0 s; 0 turns it off. No effect when epochs are at least this far apart.
+    /// On the plane map, a surface alone in facing a direction younger than this is checked by
+    /// the prediction more strictly, in proportion to its age, as a carried board has gone less
+    /// far. Default 1.0 s; 0 turns it off. No effect when epochs are at least this far apart.
     pub plane_confirmation_s: f64,
 }
 

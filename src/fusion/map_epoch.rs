@@ -342,7 +342,7 @@ impl Fusion {
 
     /// Leaves out the lines of each surface that alone faces a direction (no other surface
     /// tested faces it) unless its standing lets it (`Standing`): a `Checked` one where the
-    /// prediction knows the offset of its first line to `LONE_CHECK_SIGMA_M`. Alone, a surface
+    /// prediction knows the offset of its first line to `lone_check_sigma_m`. Alone, a surface
     /// cannot be tested against another. Returns the lines kept and the surfaces left out.
     fn leave_out_unchecked_lone(
         &mut self,
@@ -368,7 +368,7 @@ impl Fusion {
                     self.filter
                         .offset_prediction_sigma(&lines[k].line, id, epoch)
                 })
-                .is_some_and(|sigma| sigma <= LONE_CHECK_SIGMA_M)
+                .is_some_and(|sigma| sigma <= self.lone_check_sigma_m(id, t_ref))
         };
         let unchecked: Vec<u64> = surfaces
             .iter()
@@ -393,6 +393,22 @@ impl Fusion {
             .filter(|(id, _)| !unchecked.contains(id))
             .collect();
         (kept, unchecked)
+    }
+
+    /// The prediction's sigma of surface `id`'s offset at or below which it checks the surface
+    /// alone: `LONE_CHECK_SIGMA_M` once the surface is the plane confirmation's baseline old,
+    /// and in proportion to its age before. A mover shows by how far it went since its surface
+    /// was placed, and the prediction's doubt grows with that time too: at 10 Hz a board carried
+    /// at 0.5 m/s goes 5 cm an epoch, within the doubt of a velocity known to 0.1 m/s, and its
+    /// surface, placed anew each epoch, matched its next sighting and gave the body the board's
+    /// speed. At 1 Hz (no confirmation) every surface tested is an epoch old.
+    fn lone_check_sigma_m(&self, id: u64, t_ref: f64) -> f64 {
+        if !self.config.confirms_planes() {
+            return LONE_CHECK_SIGMA_M;
+        }
+        let baseline_s = self.config.plane_confirmation_s - self.config.confirmation_tolerance_s();
+        let age_s = self.plane_map.age_s(id, t_ref).unwrap_or(0.0);
+        LONE_CHECK_SIGMA_M * (age_s / baseline_s).clamp(0.0, 1.0)
     }
 
     /// Directions (navigation axes) that none of the surfaces `fused` faces.

@@ -106,6 +106,7 @@ pub enum SurfaceOrigin {
 struct Mapped {
     id: u64,
     origin: SurfaceOrigin,
+    placed_s: f64,
     last_seen_s: f64,
     /// Lines fused on it after the ones that placed it: the constraints it gave.
     lines_fused: u64,
@@ -322,6 +323,7 @@ impl PlaneMap {
             } else {
                 SurfaceOrigin::Pair
             },
+            placed_s: pose.t,
             last_seen_s: pose.t,
             lines_fused: 0,
             extent,
@@ -401,6 +403,14 @@ impl PlaneMap {
             .iter()
             .find(|m| m.id == id)
             .map(|m| m.standing)
+    }
+
+    /// How long before `t` surface `id` was placed, s.
+    pub(crate) fn age_s(&self, id: u64, t: f64) -> Option<f64> {
+        self.surfaces
+            .iter()
+            .find(|m| m.id == id)
+            .map(|m| t - m.placed_s)
     }
 
     pub(crate) fn remove(&mut self, filter: &mut Eskf, id: u64) {
