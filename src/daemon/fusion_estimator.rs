@@ -196,15 +196,16 @@ const HONEST_UP_TO_HZ: f64 = 1.0;
 
 /// Faster epochs are allowed (the plane map's figures are measured at 10 Hz too), but at 10 Hz
 /// a hover's sideways sigma on the pairs is too small by a third. Along a bare corridor, two
-/// runs of twenty on the map still send velocities off by 3.7-3.8 of their sigmas as usable
+/// runs of twenty on the map still send velocities off by 3.7-3.8 of their sigmas as usable,
+/// and in one drawn corridor of sixty a walker turning before the end wall is taken for static
 /// (docs/autopilot.md, "Above 1 Hz"). The user must hear it.
 fn warn_above_the_honest_rate(epoch_rate_hz: f64) {
     if epoch_rate_hz > HONEST_UP_TO_HZ {
         tracing::warn!(
             epoch_rate_hz,
             "fusion.epoch_rate_hz above {HONEST_UP_TO_HZ} Hz is not yet honest in a hover or, on \
-             the plane map, along a bare corridor (docs/autopilot.md, \"Above 1 Hz\"): set it \
-             to 1 for flight"
+             the plane map, along a corridor (docs/autopilot.md, \"Above 1 Hz\"): set it to 1 \
+             for flight"
         );
     }
 }
