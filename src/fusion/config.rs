@@ -140,8 +140,15 @@ impl FusionConfig {
     /// Whether epochs come often enough for the plane confirmation to apply: it is on and the
     /// previous epoch is less than its baseline back (`confirmation_tolerance_s` early counts).
     pub(super) fn confirms_planes(&self) -> bool {
-        self.plane_confirmation_s > 0.0
-            && self.epoch_interval_s() < self.plane_confirmation_s - self.confirmation_tolerance_s()
+        self.confirmation_baseline_s().is_some()
+    }
+
+    /// The shortest span, s, that counts as the plane confirmation's baseline (its length less
+    /// `confirmation_tolerance_s`), where the confirmation applies.
+    pub(super) fn confirmation_baseline_s(&self) -> Option<f64> {
+        let shortest_s = self.plane_confirmation_s - self.confirmation_tolerance_s();
+        (self.plane_confirmation_s > 0.0 && self.epoch_interval_s() < shortest_s)
+            .then_some(shortest_s)
     }
 
     /// How early an epoch may come against the confirmation's baseline: half an interval.

@@ -403,12 +403,13 @@ impl Fusion {
     /// surface, placed anew each epoch, matched its next sighting and gave the body the board's
     /// speed. At 1 Hz (no confirmation) every surface tested is an epoch old.
     fn lone_check_sigma_m(&self, id: u64, t_ref: f64) -> f64 {
-        if !self.config.confirms_planes() {
-            return LONE_CHECK_SIGMA_M;
+        match self.config.confirmation_baseline_s() {
+            Some(baseline_s) => {
+                let age_s = self.plane_map.age_s(id, t_ref).unwrap_or(0.0);
+                LONE_CHECK_SIGMA_M * (age_s / baseline_s).clamp(0.0, 1.0)
+            }
+            None => LONE_CHECK_SIGMA_M,
         }
-        let baseline_s = self.config.plane_confirmation_s - self.config.confirmation_tolerance_s();
-        let age_s = self.plane_map.age_s(id, t_ref).unwrap_or(0.0);
-        LONE_CHECK_SIGMA_M * (age_s / baseline_s).clamp(0.0, 1.0)
     }
 
     /// Directions (navigation axes) that none of the surfaces `fused` faces.
