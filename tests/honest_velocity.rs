@@ -484,9 +484,14 @@ fn started_late_in_a_random_room_the_plane_map_takes_over_usable_and_honest() {
 /// is now the map's to carry (`MapStates::hand_place_to_map`).
 #[test]
 fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
-    let trials: Vec<Trial> = [109, 112]
+    assert_usable_and_honest_on_the_map_at_10_hz("bare-corridor", [109, 112]);
+}
+
+/// Each seed of `scenario` flown still-started on the plane map at 10 Hz, usable and honest.
+fn assert_usable_and_honest_on_the_map_at_10_hz(scenario: &str, seeds: [u64; 2]) {
+    let trials: Vec<Trial> = seeds
         .map(|seed| {
-            Trial::new("bare-corridor", seed, 0.0)
+            Trial::new(scenario, seed, 0.0)
                 .measured_by(OdometryMethod::Map)
                 .at_epoch_rate(10.0)
         })
@@ -498,7 +503,7 @@ fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
             trial.seed,
             serde_json::to_string(&verdict).unwrap()
         );
-        verdict.assert_usable_and_honest(&format!("bare-corridor at 10 Hz, seed {}", trial.seed));
+        verdict.assert_usable_and_honest(&format!("{scenario} at 10 Hz, seed {}", trial.seed));
     }
 }
 
@@ -511,22 +516,7 @@ fn on_the_plane_map_at_10_hz_a_bare_corridor_stays_honest_along_its_length() {
 /// "Lone surfaces").
 #[test]
 fn on_the_plane_map_at_10_hz_a_carried_board_lends_the_body_none_of_its_speed() {
-    let trials: Vec<Trial> = [109, 112]
-        .map(|seed| {
-            Trial::new("board-corridor", seed, 0.0)
-                .measured_by(OdometryMethod::Map)
-                .at_epoch_rate(10.0)
-        })
-        .to_vec();
-    for (trial, run) in trials.iter().zip(fly_all(&trials)) {
-        let verdict = Verdict::of(&run);
-        println!(
-            "seed {}: {}",
-            trial.seed,
-            serde_json::to_string(&verdict).unwrap()
-        );
-        verdict.assert_usable_and_honest(&format!("board-corridor at 10 Hz, seed {}", trial.seed));
-    }
+    assert_usable_and_honest_on_the_map_at_10_hz("board-corridor", [109, 112]);
 }
 
 /// Narrow corridors nobody tuned on (1.4-1.6 m wide, bare but for one cabinet), walked down
