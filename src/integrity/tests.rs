@@ -157,7 +157,12 @@ proptest! {
         } else {
             displacement(&n, &mut rng, &[])
         };
-        let Ok(space) = parity_space(&system, 1e6) else { return Ok(()) };
+        // Random normals are now and then too close to parallel for the solve, whose test of
+        // degeneracy is stricter than the parity space's condition number (seed
+        // 6136834641882083998: four planes, a displacement no row pins along one direction).
+        let (Ok(space), Ok(solution)) = (parity_space(&system, 1e6), system.clone().solve()) else {
+            return Ok(());
+        };
         let m = system.rows();
         let v = space.basis();
         prop_assert_eq!(v.nrows(), m - 3);
@@ -168,7 +173,6 @@ proptest! {
         let cov_p = &space.parity_map * &system.r * space.parity_map.transpose();
         prop_assert!((cov_p - DMatrix::identity(m - 3, m - 3)).norm() < 1e-9);
         // |p|^2 is the weighted residual sum of squares.
-        let solution = system.clone().solve().unwrap();
         let r_chol = system.r.clone().cholesky().unwrap();
         let weighted = solution.residuals.dot(&r_chol.solve(&solution.residuals));
         prop_assert!((space.parity.norm_squared() - weighted).abs() < 1e-8 * (1.0 + weighted));
