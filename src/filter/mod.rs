@@ -31,7 +31,7 @@ pub(crate) mod update;
 
 pub use config::{FilterConfig, RelativePoseUpdate};
 pub use consistency::mean_nees_interval;
-pub(crate) use consistency::{chi_square_quantile, surprises};
+pub(crate) use consistency::{chi_square_quantile, surprises_one_of};
 pub use eskf::{
     Eskf, LevelDirection, LineOnSurface, LineStack, MapLine, SurfaceAllowance, SurfacePlacement,
 };

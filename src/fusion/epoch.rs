@@ -8,18 +8,18 @@ use super::anchor::Anchored;
 use super::deskew_basis::DeskewBasis;
 use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, WithCovariance};
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
-use super::witnesses::{CheckedLone, LoneWitnesses};
+use super::witnesses::{epochs_per_baseline, CheckedLone, LoneWitnesses};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
 use crate::filter::{
-    surprises, Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
-    RelativeTranslation,
+    surprises_one_of, Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement,
+    RelativeRotation, RelativeTranslation,
 };
 use crate::integrity::EpochReport;
 use crate::least_squares::Solution;
 use crate::odometry::matching;
 use crate::odometry::planes::Plane;
-use crate::odometry::{EpochPlanes, OdometryEpoch, RelativePose, Vertical};
+use crate::odometry::{EpochPlanes, OdometryEpoch, OdometryMethod, RelativePose, Vertical};
 use crate::sensors::Scan;
 
 /// How an epoch's planes are confirmed (`confirmation`).
@@ -215,13 +215,14 @@ impl Fusion {
         }
         let anchored = Anchored::new(previous, current, &epoch, &prior);
         let report = self.check_integrity(previous, current, &epoch, anchored.as_ref());
-        let cleared = self.clear(
+        let mut cleared = self.clear(
             [previous, current],
             &epoch,
             &doubt_prior,
             &report,
             anchored.as_ref(),
         );
+        self.check_over_second(&mut cleared.lone, [previous.t_ref, current.t_ref]);
         let scale = self.config.measurement_covariance_scale;
         let mut measurement = measurement(previous.t_ref, current.t_ref, &cleared, scale);
         let mut noise_maps = Vec::new();
@@ -250,7 +251,10 @@ impl Fusion {
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
         if record.outcome == EpochOutcome::Fused {
-            let surprised = record.update.is_some_and(|u| surprises(u.nis, u.dof));
+            let updates = epochs_per_baseline(current.t_ref - previous.t_ref);
+            let surprised = record
+                .update
+                .is_some_and(|u| surprises_one_of(u.nis, u.dof, updates));
             self.settle_provisional(&cleared, [previous.t_ref, current.t_ref], surprised);
         }
         record.provisional_directions = self.provisional.len();
@@ -388,6 +392,23 @@ impl Fusion {
         )
     }
 
+    /// On the plane map's odometer, checks each lone direction of the epoch from `t_previous`
+    /// to `t` over the last second of epochs too (`checks_over_second`). The pairs alone keep
+    /// the epoch's own check: their sideways sigma at 10 Hz is too small for what the second
+    /// would release.
+    fn check_over_second(&mut self, lone: &mut CheckedLone, [t_previous, t]: [f64; 2]) {
+        if self.odometer.config().method != OdometryMethod::Map {
+            return;
+        }
+        let to_navigation = self.navigation_axes_at(t_previous);
+        self.checks_over_second.review(
+            lone,
+            &to_navigation,
+            [t_previous, t],
+            self.monitor.thresholds(),
+        );
+    }
+
     /// Holds the lone directions the filter just fused unchecked, and lets go of those it
     /// fused checked (`witnesses::Provisional`). A restart forgets them with the state.
     fn settle_provisional(
@@ -435,6 +456,7 @@ impl Fusion {
         let converged = self.filter.converged();
         if self.filter_converged && !converged {
             self.provisional.clear();
+            self.checks_over_second.clear();
         }
         self.filter_converged = converged;
     }

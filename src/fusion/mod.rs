@@ -9,6 +9,7 @@
 
 mod anchor;
 mod building_vertical;
+mod checks_over_second;
 pub(crate) mod clock;
 pub(crate) mod config;
 mod confirmation;
@@ -99,6 +100,8 @@ pub struct Fusion {
     /// Directions fused on the word of a lone plane nothing could check yet: until they are
     /// checked the estimate is not converged.
     provisional: witnesses::Provisional,
+    /// The last second of each lone direction's checks, for epochs too short to tell alone.
+    checks_over_second: checks_over_second::ChecksOverSecond,
     /// Whether the filter was converged at the last epoch: losing it is a restart, which
     /// forgets the provisional directions with the state.
     filter_converged: bool,
@@ -132,6 +135,7 @@ impl Fusion {
             level_drift: level_drift::LevelDrift::default(),
             integrity: None,
             provisional: witnesses::Provisional::default(),
+            checks_over_second: checks_over_second::ChecksOverSecond::default(),
             filter_converged: false,
             last_fused_unobserved: None,
             propagated: 0,

@@ -143,6 +143,9 @@ impl LoneWitnesses {
 pub enum Check {
     /// It agrees, and would have seen the plane move at `lone_plane_detect_*`.
     Confirmed,
+    /// It agrees over the last second of epochs, summed, and they would have seen the plane
+    /// move at `lone_plane_detect_*`, though no one of them could (`checks_over_second`).
+    ConfirmedOverSecond,
     /// It agrees, and is so much surer than the plane that no fault the test could miss moves
     /// the estimate by more than the prediction's own sigma: the plane adds little, and cannot
     /// add much that is wrong.
@@ -162,15 +165,39 @@ pub enum Check {
 impl Check {
     /// Whether the prediction vouches for the direction.
     fn vouches(self) -> bool {
-        matches!(self, Self::Confirmed | Self::Outweighed)
+        matches!(
+            self,
+            Self::Confirmed | Self::ConfirmedOverSecond | Self::Outweighed
+        )
     }
 }
 
-/// The lone directions (body i) of an epoch, each with the prediction's check.
+/// A lone direction (body i) with the prediction's check of it and what the check weighed.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct LoneCheck {
+    pub direction: Vector3<f64>,
+    pub check: Check,
+    pub evidence: Evidence,
+}
+
+/// What the prediction's check of a lone direction weighed, along the direction.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Evidence {
+    /// The solve less the prediction, m or rad.
+    pub difference: f64,
+    /// The prediction's variance.
+    pub predicted: f64,
+    /// The solve's variance.
+    pub solved: f64,
+    /// The largest fault the check may miss for the plane to pass as still.
+    pub max_mdb: f64,
+}
+
+/// The lone directions of an epoch, each with the prediction's check.
 #[derive(Debug, Default)]
 pub(super) struct CheckedLone {
-    pub rotation: Vec<(Vector3<f64>, Check)>,
-    pub displacement: Vec<(Vector3<f64>, Check)>,
+    pub rotation: Vec<LoneCheck>,
+    pub displacement: Vec<LoneCheck>,
     /// The prediction's velocity covariance over the epoch (body i), m^2/s^2: what the filter
     /// knew of a direction before a lone plane taught it (`Check::Taught`).
     pub speed_covariance: Matrix3<f64>,
@@ -179,13 +206,13 @@ pub(super) struct CheckedLone {
 impl CheckedLone {
     /// For epochs.jsonl.
     pub(super) fn described(&self) -> Vec<LoneDirection> {
-        let of = |solve: SolveKind, directions: &[(Vector3<f64>, Check)]| {
+        let of = |solve: SolveKind, directions: &[LoneCheck]| {
             directions
                 .iter()
-                .map(move |&(u, check)| LoneDirection {
+                .map(move |lone| LoneDirection {
                     solve,
-                    direction: u.into(),
-                    check,
+                    direction: lone.direction.into(),
+                    check: lone.check,
                 })
                 .collect::<Vec<_>>()
         };
@@ -196,12 +223,12 @@ impl CheckedLone {
 
     /// The directions not to fuse: those the prediction contradicts.
     pub(super) fn contradicted(
-        directions: &[(Vector3<f64>, Check)],
+        directions: &[LoneCheck],
     ) -> impl Iterator<Item = Vector3<f64>> + '_ {
         directions
             .iter()
-            .filter(|(_, check)| *check == Check::Contradicted)
-            .map(|(u, _)| *u)
+            .filter(|lone| lone.check == Check::Contradicted)
+            .map(|lone| lone.direction)
     }
 }
 
@@ -212,7 +239,7 @@ struct PriorWitness {
     solution: Matrix3<f64>,
     max_mdb: f64,
     /// How many epochs a steady fault has to pull the estimate before the check's second is
-    /// up (`OUTWEIGHED_BASELINE_S`).
+    /// up (`CHECK_BASELINE_S`).
     epochs_per_baseline: f64,
 }
 
@@ -222,22 +249,31 @@ struct PriorWitness {
 /// a sigma in that second. Held to the pull of one epoch, random room 54 at 10 Hz released the
 /// pitch it held in doubt while its gyro bias was 3 mrad/s off, and sent velocities 2-4 m/s
 /// off as usable.
-const OUTWEIGHED_BASELINE_S: f64 = 1.0;
+pub(super) const CHECK_BASELINE_S: f64 = 1.0;
 
-fn epochs_per_baseline(interval_s: f64) -> f64 {
-    (OUTWEIGHED_BASELINE_S / interval_s).max(1.0)
+pub(super) fn epochs_per_baseline(interval_s: f64) -> f64 {
+    (CHECK_BASELINE_S / interval_s).max(1.0)
 }
 
 impl PriorWitness {
-    fn check_all(
-        &self,
-        directions: Vec<Vector3<f64>>,
-        thresholds: &Thresholds,
-    ) -> Vec<(Vector3<f64>, Check)> {
+    fn check_all(&self, directions: Vec<Vector3<f64>>, thresholds: &Thresholds) -> Vec<LoneCheck> {
         directions
             .into_iter()
-            .map(|u| (u, self.check(&u, thresholds)))
+            .map(|u| LoneCheck {
+                direction: u,
+                check: self.check(&u, thresholds),
+                evidence: self.evidence(&u),
+            })
             .collect()
+    }
+
+    fn evidence(&self, u: &Vector3<f64>) -> Evidence {
+        Evidence {
+            difference: u.dot(&self.difference),
+            predicted: u.dot(&(self.prediction * u)),
+            solved: u.dot(&(self.solution * u)),
+            max_mdb: self.max_mdb,
+        }
     }
 
     fn check(&self, u: &Vector3<f64>, thresholds: &Thresholds) -> Check {
@@ -293,7 +329,7 @@ struct Held {
 }
 
 /// Directions closer than this (cosine, 10 deg) count as one.
-const SAME_DIRECTION: f64 = 0.985;
+pub(super) const SAME_DIRECTION: f64 = 0.985;
 
 impl Provisional {
     /// Whether nothing fused waits for a check.
@@ -346,7 +382,7 @@ impl Provisional {
     /// `fused` the body-i directions of each of `[rotation, displacement]` that went in (`None`
     /// for a solve that did not), `to_navigation` turns body-i axes into navigation axes.
     /// `surprised`: the update's NIS was beyond what its degrees of freedom make likely
-    /// (`filter::surprises`), so what it fused does not vouch for what was held. A held
+    /// (`filter::surprises_one_of`), so what it fused does not vouch for what was held. A held
     /// direction was fused unchecked, so if it was wrong the filter has learnt from it: in
     /// `random-room-35` started 30.8 s in, a table top matched to the floor put 0.7 m/s into
     /// the vertical velocity, and when the floor and the ceiling measured the vertical rightly
@@ -461,7 +497,7 @@ const TILT_VOUCH_S: f64 = 3.0;
 /// count; it does not end it.
 fn settle(
     held: &mut Vec<Held>,
-    (checked, speed_covariance): (&[(Vector3<f64>, Check)], &Matrix3<f64>),
+    (checked, speed_covariance): (&[LoneCheck], &Matrix3<f64>),
     fused: Option<Observability>,
     to_navigation: &UnitQuaternion<f64>,
     releases: bool,
@@ -472,8 +508,8 @@ fn settle(
         let body = to_navigation.inverse_transform_vector(&h.direction);
         let witnesses: Vec<Check> = checked
             .iter()
-            .filter(|(u, _)| u.dot(&body).abs() > SAME_DIRECTION)
-            .map(|&(_, check)| check)
+            .filter(|lone| lone.direction.dot(&body).abs() > SAME_DIRECTION)
+            .map(|lone| lone.check)
             .collect();
         let vouched = witnesses.iter().all(|check| check.vouches());
         if !releases || !went_in(&body) || witnesses.contains(&Check::Contradicted) {
@@ -486,12 +522,17 @@ fn settle(
         let since = *h.agreeing_since.get_or_insert(t);
         !vouched || t - since < SELF_VOUCH_S
     });
-    for (u, check) in checked {
+    for LoneCheck {
+        direction: u,
+        check,
+        ..
+    } in checked
+    {
         let navigation = to_navigation * u;
         let in_doubt = match check {
             Check::Unchecked | Check::Taught => went_in(u),
             Check::Contradicted => true,
-            Check::Confirmed | Check::Outweighed => false,
+            Check::Confirmed | Check::ConfirmedOverSecond | Check::Outweighed => false,
         };
         let learnt_from_it = in_doubt && *check == Check::Taught;
         let taught_speed_variance = if learnt_from_it {
@@ -601,6 +642,14 @@ fn lone(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn checked(direction: Vector3<f64>, check: Check) -> LoneCheck {
+        LoneCheck {
+            direction,
+            check,
+            evidence: Evidence::default(),
+        }
+    }
 
     fn unknown(normals: &[Vector3<f64>]) -> Vec<Witness> {
         normals
@@ -806,7 +855,7 @@ mod tests {
     #[test]
     fn a_held_tilt_is_released_by_seconds_of_velocity_square_to_it() {
         let lone_pitch = CheckedLone {
-            rotation: vec![(Vector3::y(), Check::Unchecked)],
+            rotation: vec![checked(Vector3::y(), Check::Unchecked)],
             displacement: Vec::new(),
             ..CheckedLone::default()
         };
@@ -846,7 +895,7 @@ mod tests {
         assert!(held.is_empty(), "3 s of agreeing velocity square to it");
 
         let lone_heading = CheckedLone {
-            rotation: vec![(Vector3::z(), Check::Unchecked)],
+            rotation: vec![checked(Vector3::z(), Check::Unchecked)],
             displacement: Vec::new(),
             ..CheckedLone::default()
         };
@@ -864,7 +913,7 @@ mod tests {
         let along_x_unseen = Some(Observability::from_unobservable(&[Vector3::x()]));
         let lone_x = |check| CheckedLone {
             rotation: Vec::new(),
-            displacement: vec![(Vector3::x(), check)],
+            displacement: vec![checked(Vector3::x(), check)],
             ..CheckedLone::default()
         };
         let mut held = Provisional::default();
@@ -912,7 +961,7 @@ mod tests {
         };
         let lone_x = |check| CheckedLone {
             rotation: Vec::new(),
-            displacement: vec![(Vector3::x(), check)],
+            displacement: vec![checked(Vector3::x(), check)],
             speed_covariance: Matrix3::from_diagonal(&Vector3::new(0.8f64.powi(2), 0.01, 0.01)),
         };
         let mut held = Provisional::default();
@@ -947,7 +996,7 @@ mod tests {
     fn a_surprised_update_releases_no_held_direction() {
         let floor_wrongly_matched = CheckedLone {
             rotation: Vec::new(),
-            displacement: vec![(Vector3::z(), Check::Unchecked)],
+            displacement: vec![checked(Vector3::z(), Check::Unchecked)],
             ..CheckedLone::default()
         };
         let level = UnitQuaternion::identity();
