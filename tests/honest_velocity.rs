@@ -448,16 +448,7 @@ fn on_the_plane_map_at_10_hz_a_hover_started_in_motion_is_usable_within_10_s() {
         .filter(|trial| [102, 109].contains(&trial.seed))
         .map(|trial| trial.at_epoch_rate(10.0).measured_by(OdometryMethod::Map))
         .collect();
-    let runs = fly_all(&trials);
-    for (trial, run) in trials.iter().zip(&runs) {
-        let first = first_valid_after(run, trial.start_s);
-        assert!(
-            first.is_some_and(|s| s <= 10.0),
-            "started at {:.1} s: first valid {first:?}",
-            trial.start_s
-        );
-    }
-    Verdict::pooled(&runs).assert_honest("hallway-hover, started in motion, 10 Hz, Map");
+    assert_usable_within_10_s_and_honest(&trials, "hallway-hover, started in motion, 10 Hz, Map");
 }
 
 fn assert_the_flight_started_in_its_hover_is_usable(method: OdometryMethod) {
@@ -465,16 +456,24 @@ fn assert_the_flight_started_in_its_hover_is_usable(method: OdometryMethod) {
         .into_iter()
         .map(|trial| trial.measured_by(method))
         .collect();
-    let runs = fly_all(&trials);
+    assert_usable_within_10_s_and_honest(
+        &trials,
+        &format!("hallway-flight, started in motion, {method:?}"),
+    );
+}
+
+/// Each of `trials`, started in motion, usable within 10 s of its start; all of them honest.
+fn assert_usable_within_10_s_and_honest(trials: &[Trial], label: &str) {
+    let runs = fly_all(trials);
     for (trial, run) in trials.iter().zip(&runs) {
         let first = first_valid_after(run, trial.start_s);
         assert!(
             first.is_some_and(|s| s <= 10.0),
-            "started at {:.1} s: first valid {first:?}",
+            "{label}: started at {:.1} s: first valid {first:?}",
             trial.start_s
         );
     }
-    Verdict::pooled(&runs).assert_honest(&format!("hallway-flight, started in motion, {method:?}"));
+    Verdict::pooled(&runs).assert_honest(label);
 }
 
 /// The open room with the paper's rig, started in its hover: the walls to either side, the
