@@ -259,10 +259,13 @@ impl PriorWitness {
     fn check_all(&self, directions: Vec<Vector3<f64>>, thresholds: &Thresholds) -> Vec<LoneCheck> {
         directions
             .into_iter()
-            .map(|u| LoneCheck {
-                direction: u,
-                check: self.check(&u, thresholds),
-                evidence: self.evidence(&u),
+            .map(|u| {
+                let evidence = self.evidence(&u);
+                LoneCheck {
+                    direction: u,
+                    check: self.check(&evidence, thresholds),
+                    evidence,
+                }
             })
             .collect()
     }
@@ -276,10 +279,10 @@ impl PriorWitness {
         }
     }
 
-    fn check(&self, u: &Vector3<f64>, thresholds: &Thresholds) -> Check {
+    fn check(&self, evidence: &Evidence, thresholds: &Thresholds) -> Check {
         let gamma = thresholds.sole();
-        let predicted = u.dot(&(self.prediction * u));
-        let sigma = (predicted + u.dot(&(self.solution * u))).sqrt();
+        let predicted = evidence.predicted;
+        let sigma = (predicted + evidence.solved).sqrt();
         let mdb = (gamma + thresholds.missed_detection_quantile) * sigma;
         // The filter takes a share predicted / sigma^2 of the difference along u: a fault the
         // test cannot see moves the estimate by at most that share of the MDB, each epoch.
@@ -287,9 +290,9 @@ impl PriorWitness {
         // A second of the plane's epochs measures the velocity along u with the variance of
         // one epoch's displacement over the epochs in that second.
         let plane_over_baseline = (sigma * sigma - predicted) / self.epochs_per_baseline;
-        if u.dot(&self.difference).abs() > gamma * sigma {
+        if evidence.difference.abs() > gamma * sigma {
             Check::Contradicted
-        } else if mdb <= self.max_mdb {
+        } else if mdb <= evidence.max_mdb {
             Check::Confirmed
         } else if pull <= predicted.sqrt() {
             Check::Outweighed
@@ -807,20 +810,29 @@ mod tests {
             max_mdb: 0.1,
             epochs_per_baseline: 1.0,
         };
-        assert_eq!(tight.check(&Vector3::x(), &thresholds), Check::Confirmed);
+        assert_eq!(
+            tight.check(&tight.evidence(&Vector3::x()), &thresholds),
+            Check::Confirmed
+        );
         // The same plane after the filter dead-reckoned along x: nothing checks it, and fused
         // it teaches the filter the direction.
         let loose = PriorWitness {
             prediction: Matrix3::identity() * 0.2f64.powi(2),
             ..tight
         };
-        assert_eq!(loose.check(&Vector3::x(), &thresholds), Check::Taught);
+        assert_eq!(
+            loose.check(&loose.evidence(&Vector3::x()), &thresholds),
+            Check::Taught
+        );
         // A tight prediction that disagrees: the plane moved.
         let moved = PriorWitness {
             difference: Vector3::new(0.1, 0.0, 0.0),
             ..tight
         };
-        assert_eq!(moved.check(&Vector3::x(), &thresholds), Check::Contradicted);
+        assert_eq!(
+            moved.check(&moved.evidence(&Vector3::x()), &thresholds),
+            Check::Contradicted
+        );
     }
 
     #[test]
@@ -835,19 +847,28 @@ mod tests {
             max_mdb: 0.1,
             epochs_per_baseline: 1.0,
         };
-        assert_eq!(vague.check(&Vector3::x(), &thresholds), Check::Outweighed);
+        assert_eq!(
+            vague.check(&vague.evidence(&Vector3::x()), &thresholds),
+            Check::Outweighed
+        );
         // At 10 Hz ten such pulls add up within the second: 1.6 cm, over the 5 mm.
         let at_10_hz = PriorWitness {
             epochs_per_baseline: 10.0,
             ..vague
         };
-        assert_eq!(at_10_hz.check(&Vector3::x(), &thresholds), Check::Unchecked);
+        assert_eq!(
+            at_10_hz.check(&at_10_hz.evidence(&Vector3::x()), &thresholds),
+            Check::Unchecked
+        );
         // With the prediction at 3 cm the filter would take 8 % of a 0.67 m fault: 5.5 cm.
         let surer = PriorWitness {
             prediction: Matrix3::identity() * 0.03f64.powi(2),
             ..vague
         };
-        assert_eq!(surer.check(&Vector3::x(), &thresholds), Check::Unchecked);
+        assert_eq!(
+            surer.check(&surer.evidence(&Vector3::x()), &thresholds),
+            Check::Unchecked
+        );
     }
 
     /// The open room started in motion: a lone plane gave the pitch unchecked, and no rotation
