@@ -157,23 +157,32 @@ impl Track {
 
 /// Whether the epochs' checks, summed, agree with the prediction and would have seen the
 /// plane move at the detection speed over their span.
-fn confirms<'a>(
-    epochs: impl Iterator<Item = &'a Evidence> + Clone,
-    thresholds: &Thresholds,
-) -> bool {
-    let difference: f64 = epochs.clone().map(|e| e.difference).sum();
-    let solved: f64 = epochs.clone().map(|e| e.solved).sum();
-    let predicted_sigma: f64 = epochs.clone().map(|e| e.predicted.sqrt()).sum();
-    let absorbed: f64 = epochs
-        .clone()
-        .map(|e| e.predicted / (e.predicted + e.solved).max(f64::MIN_POSITIVE))
-        .sum();
-    let max_mdb: f64 = epochs.map(|e| e.max_mdb).sum();
-    let retained = 1.0 - absorbed;
-    let sigma = (solved + predicted_sigma.powi(2)).sqrt();
+fn confirms<'a>(epochs: impl Iterator<Item = &'a Evidence>, thresholds: &Thresholds) -> bool {
+    let sum = epochs.fold(Summed::default(), |sum, e| Summed {
+        difference: sum.difference + e.difference,
+        solved: sum.solved + e.solved,
+        predicted_sigma: sum.predicted_sigma + e.predicted.sqrt(),
+        absorbed: sum.absorbed + e.predicted / (e.predicted + e.solved).max(f64::MIN_POSITIVE),
+        max_mdb: sum.max_mdb + e.max_mdb,
+    });
+    let retained = 1.0 - sum.absorbed;
+    let sigma = (sum.solved + sum.predicted_sigma.powi(2)).sqrt();
     let gamma = thresholds.sole();
     let mdb = (gamma + thresholds.missed_detection_quantile) * sigma;
-    retained >= MIN_RETAINED && difference.abs() <= gamma * sigma && mdb <= retained * max_mdb
+    retained >= MIN_RETAINED
+        && sum.difference.abs() <= gamma * sigma
+        && mdb <= retained * sum.max_mdb
+}
+
+/// A second of checks summed: the differences, the solves' variances, the predictions' sigmas,
+/// the shares of a steady fault the filter took into later predictions, and the MDBs allowed.
+#[derive(Default)]
+struct Summed {
+    difference: f64,
+    solved: f64,
+    predicted_sigma: f64,
+    absorbed: f64,
+    max_mdb: f64,
 }
 
 #[cfg(test)]

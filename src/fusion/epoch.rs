@@ -201,7 +201,12 @@ impl Fusion {
             record.outcome = EpochOutcome::Reference;
             return Vec::new();
         };
-        let doubt_prior = self.doubt_prior(&prior, previous.t_ref, current.t_ref);
+        // The clone's axes before this epoch is fused. Pairings are doubted under the filter's
+        // prior made vaguer along what it holds in doubt (`witnesses::Provisional::widened`).
+        let to_navigation = self.navigation_axes_at(previous.t_ref);
+        let doubt_prior =
+            self.provisional
+                .widened(&prior, &to_navigation, current.t_ref - previous.t_ref);
         let mut epoch = self
             .odometer
             .solve_doubting_under(previous, current, &prior, &doubt_prior);
@@ -222,7 +227,11 @@ impl Fusion {
             &report,
             anchored.as_ref(),
         );
-        self.check_over_second(&mut cleared.lone, [previous.t_ref, current.t_ref]);
+        self.check_over_second(
+            &mut cleared.lone,
+            &to_navigation,
+            [previous.t_ref, current.t_ref],
+        );
         let scale = self.config.measurement_covariance_scale;
         let mut measurement = measurement(previous.t_ref, current.t_ref, &cleared, scale);
         let mut noise_maps = Vec::new();
@@ -392,21 +401,22 @@ impl Fusion {
         )
     }
 
-    /// On the plane map's odometer, checks each lone direction of the epoch from `t_previous`
-    /// to `t` over the last second of epochs too (`checks_over_second`). The pairs alone keep
+    /// On the plane map's odometer, checks each lone direction of the epoch spanning
+    /// `interval` over the last second of epochs too (`checks_over_second`); `to_navigation`
+    /// turns the epoch's body-i axes into navigation axes. The pairs alone keep
     /// the epoch's own check: their sideways sigma at 10 Hz is too small for what the second
     /// would release.
-    fn check_over_second(&mut self, lone: &mut CheckedLone, [t_previous, t]: [f64; 2]) {
+    fn check_over_second(
+        &mut self,
+        lone: &mut CheckedLone,
+        to_navigation: &UnitQuaternion<f64>,
+        interval: [f64; 2],
+    ) {
         if self.odometer.config().method != OdometryMethod::Map {
             return;
         }
-        let to_navigation = self.navigation_axes_at(t_previous);
-        self.checks_over_second.review(
-            lone,
-            &to_navigation,
-            [t_previous, t],
-            self.monitor.thresholds(),
-        );
+        self.checks_over_second
+            .review(lone, to_navigation, interval, self.monitor.thresholds());
     }
 
     /// Holds the lone directions the filter just fused unchecked, and lets go of those it
@@ -440,14 +450,6 @@ impl Fusion {
         self.filter
             .pose_at_or_after(t)
             .map_or(self.filter.state().q, |pose| pose.q)
-    }
-
-    /// The prior a pairing of the planes from `t_previous` to `t` is doubted under: the
-    /// filter's, vaguer along what it holds in doubt (`witnesses::Provisional::widened`).
-    fn doubt_prior(&self, prior: &RelativePose, t_previous: f64, t: f64) -> RelativePose {
-        let to_navigation = self.navigation_axes_at(t_previous);
-        self.provisional
-            .widened(prior, &to_navigation, t - t_previous)
     }
 
     /// A filter that lost its convergence restarted: what it held provisional went with the
