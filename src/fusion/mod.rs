@@ -205,7 +205,11 @@ impl Fusion {
         } else {
             let record = self.run_epoch(&scans, t_ref);
             let settled = self.observability_settled(&record);
-            if method == OdometryMethod::Map && settled && self.ready_for_the_map() {
+            if method == OdometryMethod::Map
+                && settled
+                && self.ready_for_the_map()
+                && self.map_keeps_what_the_pairs_observe(&record)
+            {
                 self.seed_map(t_ref);
             }
             record
@@ -232,7 +236,8 @@ impl Fusion {
     /// motion handed over with 0.55 m/s of sigma along the hallway and a velocity 1.9 m/s off
     /// along it, which the map's first updates then took for known to 0.23 m/s.
     /// The caller also asks that the pairs' epoch was not the first to observe a direction
-    /// (`observability_settled`).
+    /// (`observability_settled`) and that the map keeps every direction it observed
+    /// (`map_keeps_what_the_pairs_observe`).
     fn ready_for_the_map(&self) -> bool {
         let surely_placed = || {
             let velocity = self

@@ -143,7 +143,7 @@ pub(crate) struct Trust {
 }
 
 impl Trust {
-    fn standing(&self, plane: &Plane) -> Standing {
+    pub(crate) fn standing(&self, plane: &Plane) -> Standing {
         let level = self.building.is_some_and(|b| b.is_level(&plane.normal));
         match (plane.normal_assumed, plane.crossing) {
             (true, _) if !level => Standing::Corroborated,
