@@ -37,6 +37,15 @@ enum Confirmation {
     },
 }
 
+/// What solving an epoch against the one before leaves for the next.
+#[derive(Default)]
+struct SolvedEpoch {
+    /// How the epoch's planes entered the relative pose (`shared_noise`).
+    noise_maps: Vec<PlaneNoiseMap>,
+    /// The epoch's planes matched to the epoch before and kept by integrity.
+    matched: Vec<usize>,
+}
+
 /// The solves integrity let through, with the matches they left out.
 struct Cleared {
     rotation: Option<Solution>,
@@ -76,11 +85,11 @@ impl Fusion {
             (false, Some(_)) => current.planes.len(),
             (false, None) => 0,
         };
-        let mut noise_maps = Vec::new();
+        let mut solved = SolvedEpoch::default();
         match solvable.filter(|_| confirmed) {
             Some(reference) => {
                 record.t_previous = Some(reference.planes.t_ref);
-                noise_maps = self.solve_and_fuse(reference, &current, &mut record);
+                solved = self.solve_and_fuse(reference, &current, &mut record);
             }
             None => self.level_drift.forget(),
         }
@@ -94,7 +103,8 @@ impl Fusion {
             planes: current,
             cloned,
             deskew,
-            noise_maps,
+            noise_maps: solved.noise_maps,
+            matched: solved.matched,
         });
         self.current = reference.map(|r| r.planes).unwrap_or_default();
         record
@@ -194,12 +204,12 @@ impl Fusion {
         reference: &Reference,
         current: &EpochPlanes,
         record: &mut EpochRecord,
-    ) -> Vec<PlaneNoiseMap> {
+    ) -> SolvedEpoch {
         let previous = &reference.planes;
         let Some(prior) = self.odometer_prior(previous.t_ref, current.t_ref) else {
             self.level_drift.forget();
             record.outcome = EpochOutcome::Reference;
-            return Vec::new();
+            return SolvedEpoch::default();
         };
         // The clone's axes before this epoch is fused. Pairings are doubted under the filter's
         // prior made vaguer along what it holds in doubt (`witnesses::Provisional::widened`).
@@ -267,7 +277,17 @@ impl Fusion {
             self.settle_provisional(&cleared, [previous.t_ref, current.t_ref], surprised);
         }
         record.provisional_directions = self.provisional.len();
-        noise_maps
+        let matched = epoch
+            .matches
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| !cleared.excluded.contains(k))
+            .map(|(_, m)| m.current)
+            .collect();
+        SolvedEpoch {
+            noise_maps,
+            matched,
+        }
     }
 
     /// Hands the cleared relative pose to the filter, if anything was cleared.

@@ -107,10 +107,13 @@ impl Fusion {
 
     /// Whether the surfaces `seed_map` would place from the pairs' epoch `record` face every
     /// direction that epoch observed, counting only those the map lets face a direction alone
-    /// (not `Standing::Corroborated`). Handed over sooner, the map gave up what the pairs saw:
-    /// in the hall walk the end wall, a wall from one line, could not alone face the hall's
-    /// length on the map, which left it unfaced for 20 s until a second surface came into view
-    /// (17 % of the epochs at 1 Hz).
+    /// (not `Standing::Corroborated`) and seen at the epoch before too (matched, and kept by
+    /// integrity). Handed over sooner, the map gave up what the pairs saw: in the hall walk the
+    /// end wall, a wall from one line, could not alone face the hall's length on the map, which
+    /// left it unfaced for 20 s until a second surface came into view (17 % of the epochs at
+    /// 1 Hz). A plane seen once may not be seen again: in the open room a shelf's slanted face,
+    /// new at the hand-over epoch, faced the room's length enough to pass, and the map left
+    /// that length unfaced for 7 s.
     ///
     /// Only at the paper's 1 Hz or slower. Above it the pairs' sideways sigma is too small
     /// (docs/autopilot.md, "Above 1 Hz"), and the map is the honest odometer: kept on the pairs
@@ -131,7 +134,11 @@ impl Fusion {
             .planes
             .planes
             .iter()
-            .filter(|plane| trust.standing(plane) != Standing::Corroborated)
+            .enumerate()
+            .filter(|(k, plane)| {
+                reference.matched.contains(k) && trust.standing(plane) != Standing::Corroborated
+            })
+            .map(|(_, plane)| plane)
             .map(|plane| plane.normal)
             .collect();
         let unobserved_by_pairs: Vec<Vector3<f64>> = record

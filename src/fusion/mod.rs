@@ -67,6 +67,8 @@ struct Reference {
     deskew: deskew_basis::DeskewBasis,
     /// How the planes entered the relative pose that ended at this epoch, if one was solved.
     noise_maps: Vec<shared_noise::PlaneNoiseMap>,
+    /// Its planes matched to the epoch before and kept by integrity.
+    matched: Vec<usize>,
 }
 
 #[derive(Clone)]
