@@ -166,12 +166,15 @@ fn confirms<'a>(epochs: impl Iterator<Item = &'a Evidence>, thresholds: &Thresho
         max_mdb: sum.max_mdb + e.max_mdb,
     });
     let retained = 1.0 - sum.absorbed;
-    let sigma = (sum.solved + sum.predicted_sigma.powi(2)).sqrt();
-    let gamma = thresholds.sole();
-    let mdb = (gamma + thresholds.missed_detection_quantile) * sigma;
+    let over_second = Evidence {
+        difference: sum.difference,
+        predicted: sum.predicted_sigma.powi(2),
+        solved: sum.solved,
+        max_mdb: retained * sum.max_mdb,
+    };
     retained >= MIN_RETAINED
-        && sum.difference.abs() <= gamma * sigma
-        && mdb <= retained * sum.max_mdb
+        && over_second.agrees(thresholds)
+        && over_second.would_see_the_plane_move(thresholds)
 }
 
 /// A second of checks summed: the differences, the solves' variances, the predictions' sigmas,

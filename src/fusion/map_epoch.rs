@@ -126,10 +126,7 @@ impl Fusion {
         let Some(reference) = self.reference.as_ref() else {
             return false;
         };
-        let trust = Trust {
-            min_extent_m: self.monitor.config().lone_plane_min_extent_m,
-            building: self.odometer.config().building(reference.planes.down),
-        };
+        let trust = self.trust(&reference.planes);
         let trusted: Vec<Vector3<f64>> = reference
             .planes
             .planes
@@ -138,8 +135,7 @@ impl Fusion {
             .filter(|(k, plane)| {
                 reference.matched.contains(k) && trust.standing(plane) != Standing::Corroborated
             })
-            .map(|(_, plane)| plane)
-            .map(|plane| plane.normal)
+            .map(|(_, plane)| plane.normal)
             .collect();
         let unobserved_by_pairs: Vec<Vector3<f64>> = record
             .unobservable_displacement
@@ -365,10 +361,7 @@ impl Fusion {
         pose: &Pose,
     ) -> Vec<u64> {
         let index_of = |at: LineRef| lines.iter().position(|l| l.at == at);
-        let trust = Trust {
-            min_extent_m: self.monitor.config().lone_plane_min_extent_m,
-            building: self.odometer.config().building(current.down),
-        };
+        let trust = self.trust(current);
         let mut placed = Vec::new();
         for plane in &current.planes {
             let members: Option<Vec<usize>> = plane
@@ -387,6 +380,14 @@ impl Fusion {
             );
         }
         placed
+    }
+
+    /// How far a surface placed from `planes` is believed before it has shown more.
+    fn trust(&self, planes: &EpochPlanes) -> Trust {
+        Trust {
+            min_extent_m: self.monitor.config().lone_plane_min_extent_m,
+            building: self.odometer.config().building(planes.down),
+        }
     }
 
     /// Leaves out the lines of each surface that alone faces a direction (no other surface

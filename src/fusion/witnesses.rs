@@ -193,6 +193,28 @@ pub(super) struct Evidence {
     pub max_mdb: f64,
 }
 
+impl Evidence {
+    /// Sigma of the difference: the prediction's and the solve's doubts together.
+    fn sigma(&self) -> f64 {
+        (self.predicted + self.solved).sqrt()
+    }
+
+    /// The smallest fault the check sees with the missed-detection probability.
+    fn mdb(&self, thresholds: &Thresholds) -> f64 {
+        (thresholds.sole() + thresholds.missed_detection_quantile) * self.sigma()
+    }
+
+    /// Whether the solve agrees with the prediction.
+    pub(super) fn agrees(&self, thresholds: &Thresholds) -> bool {
+        self.difference.abs() <= thresholds.sole() * self.sigma()
+    }
+
+    /// Whether the check would have seen the plane move by `max_mdb`.
+    pub(super) fn would_see_the_plane_move(&self, thresholds: &Thresholds) -> bool {
+        self.mdb(thresholds) <= self.max_mdb
+    }
+}
+
 /// The lone directions of an epoch, each with the prediction's check.
 #[derive(Debug, Default)]
 pub(super) struct CheckedLone {
@@ -280,19 +302,18 @@ impl PriorWitness {
     }
 
     fn check(&self, evidence: &Evidence, thresholds: &Thresholds) -> Check {
-        let gamma = thresholds.sole();
         let predicted = evidence.predicted;
-        let sigma = (predicted + evidence.solved).sqrt();
-        let mdb = (gamma + thresholds.missed_detection_quantile) * sigma;
+        let sigma = evidence.sigma();
+        let mdb = evidence.mdb(thresholds);
         // The filter takes a share predicted / sigma^2 of the difference along u: a fault the
         // test cannot see moves the estimate by at most that share of the MDB, each epoch.
         let pull = mdb * predicted / (sigma * sigma) * self.epochs_per_baseline;
         // A second of the plane's epochs measures the velocity along u with the variance of
         // one epoch's displacement over the epochs in that second.
         let plane_over_baseline = (sigma * sigma - predicted) / self.epochs_per_baseline;
-        if evidence.difference.abs() > gamma * sigma {
+        if !evidence.agrees(thresholds) {
             Check::Contradicted
-        } else if mdb <= evidence.max_mdb {
+        } else if evidence.would_see_the_plane_move(thresholds) {
             Check::Confirmed
         } else if pull <= predicted.sqrt() {
             Check::Outweighed
