@@ -405,6 +405,19 @@ impl PlaneMap {
             .map(|m| m.standing)
     }
 
+    /// Whether surface `id` shows by its own lines that it is a surface where it was placed, so
+    /// that it may teach the filter a direction before the prediction can check it: placed from
+    /// two lines seen at once, or seen `CORROBORATING_SPREAD_M` up its height. Seen from places
+    /// apart along its normal is not enough: where nothing else faces that way the body's place
+    /// along it is the prediction's, and a ceiling line taken for a wall, which moves with the
+    /// body, stays where a prediction that has not seen the body move puts it (`bare-corridor`,
+    /// rolled rig, seed 217: corroborated so at 67 s, and fused, it held the walk still).
+    pub(crate) fn shows_itself(&self, id: u64) -> bool {
+        self.surfaces.iter().find(|m| m.id == id).is_some_and(|m| {
+            m.origin == SurfaceOrigin::Pair || m.extent.vertical_spread() >= CORROBORATING_SPREAD_M
+        })
+    }
+
     /// How long before `t` surface `id` was placed, s.
     pub(crate) fn age_s(&self, id: u64, t: f64) -> Option<f64> {
         self.surfaces
