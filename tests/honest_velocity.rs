@@ -845,6 +845,22 @@ fn study_sensors_noisier_than_configured_20_runs() {
     });
 }
 
+/// The same on the plane map (docs/accuracy.md, "Noisier sensors than configured"): it fails
+/// on the hall walk, whose ranges three times noisier than configured leave the map a tilt
+/// learnt wrong; the map is not the default until it passes.
+#[test]
+#[ignore = "release-mode study (docs/autopilot.md)"]
+fn study_plane_map_sensors_noisier_than_configured_20_runs() {
+    every_honesty_study(
+        "on the plane map with sensors three times noisier",
+        |trial| {
+            trial
+                .with_sensors_noisier(3.0)
+                .measured_by(OdometryMethod::Map)
+        },
+    );
+}
+
 /// Runs every honesty study with its trials `changed`, prints each, and fails at the end
 /// naming those not honest (a study that was never usable is not judged).
 fn every_honesty_study(change: &str, changed: impl Fn(Trial) -> Trial) {
