@@ -43,7 +43,7 @@ pub struct MapEpoch {
 /// The prediction's sigma of a lone surface's offset (m) at or below which it checks the
 /// surface: a surface moving with the body then stands out from the prediction within an epoch
 /// of walking pace at 1 Hz (0.1 m against four sigmas of 2 cm).
-const LONE_CHECK_SIGMA_M: f64 = 0.02;
+pub(super) const LONE_CHECK_SIGMA_M: f64 = 0.02;
 
 /// Whether `normal` faces a direction none of `others` faces: more than a tenth of it lies
 /// where their normals together hold less than a twentieth of a surface's facing.
