@@ -8,12 +8,12 @@ use super::anchor::Anchored;
 use super::deskew_basis::DeskewBasis;
 use super::record::{EpochOutcome, EpochRecord, PlaneGeometry, UpdateSummary, WithCovariance};
 use super::shared_noise::{NoiseMaps, PlaneNoiseMap};
-use super::witnesses::{epochs_per_baseline, CheckedLone, LoneWitnesses};
+use super::witnesses::{CheckedLone, LoneWitnesses};
 use super::{Fusion, Reference};
 use crate::estimate::IntegrityStatus;
 use crate::filter::{
-    surprises_one_of, Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement,
-    RelativeRotation, RelativeTranslation,
+    Eskf, FilterPhase, Observability, Pose, RelativePoseMeasurement, RelativeRotation,
+    RelativeTranslation,
 };
 use crate::integrity::EpochReport;
 use crate::least_squares::Solution;
@@ -270,10 +270,8 @@ impl Fusion {
             .map(|d| WithCovariance::new(&d.displacement, &d.covariance));
         (record.outcome, record.update) = self.fuse(&measurement);
         if record.outcome == EpochOutcome::Fused {
-            let updates = epochs_per_baseline(current.t_ref - previous.t_ref);
-            let surprised = record
-                .update
-                .is_some_and(|u| surprises_one_of(u.nis, u.dof, updates));
+            let interval_s = current.t_ref - previous.t_ref;
+            let surprised = record.update.is_some_and(|u| u.surprising(interval_s));
             self.settle_provisional(&cleared, [previous.t_ref, current.t_ref], surprised);
         }
         record.provisional_directions = self.provisional.len();

@@ -3,17 +3,17 @@
 //! test the surfaces against the prediction and exclude one that moved, fuse the lines, place
 //! new surfaces from the planes whose lines lie on none, and forget the surfaces out of reach.
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::plane_map::{Association, Standing, SurfaceRecord, Trust};
 use super::record::{EpochOutcome, EpochRecord, UpdateSummary};
-use super::witnesses::{epochs_per_baseline, Check, CheckedLone, Evidence, LoneCheck};
+use super::witnesses::{Check, CheckedLone, Evidence, LoneCheck};
 use super::Fusion;
 use crate::estimate::IntegrityStatus;
 use crate::filter::config::PAPER_EPOCH_S;
 use crate::filter::state::VEL;
-use crate::filter::{surprises_one_of, FilterPhase, LineOnSurface, MapLine, Observability, Pose};
+use crate::filter::{FilterPhase, LineOnSurface, MapLine, Observability, Pose};
 use crate::integrity::blocks::{test_surfaces, Block, MapIntegrity, StackedInnovation};
 use crate::least_squares::{directions_below, facing, PARALLEL_TOLERANCE};
 use crate::odometry::planes::LineRef;
@@ -92,14 +92,6 @@ struct LoneSurfaces {
     left_out: Vec<u64>,
     /// Each lone surface kept (navigation normal) with the prediction's check of it.
     checks: Vec<(Vector3<f64>, Check)>,
-}
-
-/// The lone surfaces an update fused, each (navigation normal) with the prediction's check,
-/// and the velocity covariance (navigation) the filter had before: what it knew along a
-/// direction before a lone surface taught it.
-struct TaughtByLone {
-    checks: Vec<(Vector3<f64>, Check)>,
-    velocity_before: Matrix3<f64>,
 }
 
 /// A line of the epoch with where it lies.
@@ -211,19 +203,12 @@ impl Fusion {
             checks,
         } = self.leave_out_unchecked_lone(&lines, &tested, t_ref);
         let unfaced = self.unfaced(&fused);
-        let velocity_before = self
-            .filter
-            .covariance()
-            .fixed_view::<3, 3>(VEL, VEL)
-            .into_owned();
+        // Before the update: what the filter knew along each lone direction before it learnt it.
+        let lone = self.lone_checks(&checks, pose);
         self.fuse_map_lines(&lines, &fused, &unfaced, pose, record);
         let fused_any = record.outcome == EpochOutcome::Fused;
         if fused_any {
-            let lone = TaughtByLone {
-                checks,
-                velocity_before,
-            };
-            self.settle_lone_surfaces(lone, &unfaced, pose, record);
+            self.settle_lone_surfaces(&lone, &unfaced, pose, record);
         }
         record.provisional_directions = self.provisional.len();
         self.note_sightings(&lines, &tested, &fused, pose, fused_any);
@@ -464,7 +449,7 @@ impl Fusion {
                 .is_some_and(|sigma| sigma <= self.lone_check_sigma_m(id, t_ref))
         };
         let mut left_out = Vec::new();
-        let mut lone = Vec::new();
+        let mut checks = Vec::new();
         for &(id, k, normal) in &surfaces {
             let others: Vec<Vector3<f64>> = surfaces
                 .iter()
@@ -475,10 +460,10 @@ impl Fusion {
                 Some(Standing::Static) => {}
                 _ if !faces_alone(&normal, &others) => {}
                 Some(Standing::Checked) if checked_by_prediction(id, k) => {
-                    lone.push((normal, Check::Confirmed));
+                    checks.push((normal, Check::Confirmed));
                 }
                 Some(Standing::Checked) if self.may_teach(id, t_ref) => {
-                    lone.push((normal, Check::Taught));
+                    checks.push((normal, Check::Taught));
                 }
                 _ => left_out.push(id),
             }
@@ -491,7 +476,30 @@ impl Fusion {
         LoneSurfaces {
             kept,
             left_out,
-            checks: lone,
+            checks,
+        }
+    }
+
+    /// The lone surfaces' `checks` (navigation normals) as the pairs' witnesses put them, in
+    /// `pose`'s body axes, with the velocity covariance the filter has now, before the update.
+    fn lone_checks(&self, checks: &[(Vector3<f64>, Check)], pose: &Pose) -> CheckedLone {
+        let turn = pose.q.to_rotation_matrix().into_inner();
+        let velocity = self
+            .filter
+            .covariance()
+            .fixed_view::<3, 3>(VEL, VEL)
+            .into_owned();
+        CheckedLone {
+            rotation: Vec::new(),
+            displacement: checks
+                .iter()
+                .map(|(normal, check)| LoneCheck {
+                    direction: pose.q.inverse_transform_vector(normal),
+                    check: *check,
+                    evidence: Evidence::default(),
+                })
+                .collect(),
+            speed_covariance: turn.transpose() * velocity * turn,
         }
     }
 
@@ -500,34 +508,20 @@ impl Fusion {
     /// (`witnesses::Provisional`). `unfaced`: the directions no fused surface faced.
     fn settle_lone_surfaces(
         &mut self,
-        lone: TaughtByLone,
+        lone: &CheckedLone,
         unfaced: &[Vector3<f64>],
         pose: &Pose,
         record: &EpochRecord,
     ) {
-        let to_body = |d: &Vector3<f64>| pose.q.inverse_transform_vector(d);
-        let turn = pose.q.to_rotation_matrix().into_inner();
-        let checked = CheckedLone {
-            rotation: Vec::new(),
-            displacement: lone
-                .checks
-                .iter()
-                .map(|(normal, check)| LoneCheck {
-                    direction: to_body(normal),
-                    check: *check,
-                    evidence: Evidence::default(),
-                })
-                .collect(),
-            speed_covariance: turn.transpose() * lone.velocity_before * turn,
-        };
-        let unfaced_body: Vec<Vector3<f64>> = unfaced.iter().map(to_body).collect();
+        let unfaced_body: Vec<Vector3<f64>> = unfaced
+            .iter()
+            .map(|d| pose.q.inverse_transform_vector(d))
+            .collect();
         let faced = Observability::from_unobservable(&unfaced_body);
-        let updates = epochs_per_baseline(self.config.epoch_interval_s());
-        let surprised = record
-            .update
-            .is_some_and(|u| surprises_one_of(u.nis, u.dof, updates));
+        let interval_s = self.config.epoch_interval_s();
+        let surprised = record.update.is_some_and(|u| u.surprising(interval_s));
         self.provisional
-            .after_fusion(&checked, [None, Some(faced)], &pose.q, surprised, pose.t);
+            .after_fusion(lone, [None, Some(faced)], &pose.q, surprised, pose.t);
     }
 
     /// Whether surface `id`, alone in facing a direction the prediction cannot check, may be

@@ -4,8 +4,9 @@
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
+use super::witnesses::epochs_per_baseline;
 use crate::estimate::IntegrityStatus;
-use crate::filter::UpdateReport;
+use crate::filter::{surprises_one_of, UpdateReport};
 use crate::integrity::{EpochReport, SolveKind};
 use crate::odometry::deskew::DroppedReadings;
 use crate::odometry::planes::Plane;
@@ -55,6 +56,15 @@ pub struct UpdateSummary {
     /// Gate threshold on the NIS.
     pub threshold: f64,
     pub accepted: bool,
+}
+
+impl UpdateSummary {
+    /// Whether its NIS surprises one of the updates of the paper's second at epochs
+    /// `interval_s` apart (`filter::surprises_one_of`): what it fused then vouches for nothing
+    /// held in doubt (`witnesses::Provisional`).
+    pub(crate) fn surprising(&self, interval_s: f64) -> bool {
+        surprises_one_of(self.nis, self.dof, epochs_per_baseline(interval_s))
+    }
 }
 
 impl From<&UpdateReport> for UpdateSummary {
