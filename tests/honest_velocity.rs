@@ -376,11 +376,17 @@ fn a_bare_corridor_never_tells_the_autopilot_a_wrong_velocity_is_good() {
 /// On the plane map the corridor's length is faced by nothing but the cabinet: the map holds
 /// the position along it where it was (`Eskf::held_along`). Before, every epoch's update moved
 /// it by decimetres: 134 pose jumps in these four runs, and 94 % of the messages inside 3
-/// sigma along it.
+/// sigma along it. The place is now corrected only as the velocity it was walked at is
+/// measured again, through the map's origin (`MapStates::hand_place_to_map`): 31 jumps, each
+/// with `reset_counter` (the pairs: 341), where the place was never corrected before.
 #[test]
-fn on_the_plane_map_the_bare_corridor_is_honest_and_the_pose_does_not_jump() {
+fn on_the_plane_map_the_bare_corridor_is_honest_and_the_pose_seldom_jumps() {
     let verdict = assert_the_corridor_is_honest(OdometryMethod::Map);
-    assert_eq!(verdict.resets, 0, "{verdict:?}");
+    let runs_s = 4.0 * 120.0;
+    assert!(
+        (verdict.resets as f64) < runs_s / 10.0,
+        "a jump more often than every 10 s: {verdict:?}"
+    );
 }
 
 /// A scanner that ranges three times worse than its `range_sigma_m` and an IMU three times

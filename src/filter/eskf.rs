@@ -246,11 +246,6 @@ pub struct Eskf {
     map: MapStates,
     /// The gate's chi-square thresholds by rows of lines on the map, filled as counts occur.
     map_gates: Vec<f64>,
-    /// What the map took over of the position's error along unfaced directions
-    /// (`MapStates::hand_place_to_map`), as the sum of each hand-over's standard deviation
-    /// (`handed_over_place`): no longer the filter's to linearise at, still the estimate's to
-    /// report.
-    place_handed_over: Matrix3<f64>,
 }
 
 /// What a restart keeps: the local frame's origin and heading stay, with their uncertainty,
@@ -339,7 +334,6 @@ impl Eskf {
             velocity_corrections: Vector3::zeros(),
             map: MapStates::default(),
             map_gates: Vec::new(),
-            place_handed_over: Matrix3::zeros(),
             config,
         })
     }
@@ -514,7 +508,7 @@ impl Eskf {
             return ImuOutcome::Gap { seconds };
         }
         if seconds > self.config.max_coast_s {
-            self.take_place_back();
+            self.dissolve_map();
             self.resume = Some(Resume::of(&self.state, &self.covariance));
             self.restart_alignment(t);
             self.count_reset(ResetReason::ImuGap { seconds });
@@ -651,7 +645,8 @@ impl Eskf {
         let mut covariance = self.covariance;
         let gated =
             update::apply(&mut covariance, rows, gate).map_err(|_| UpdateError::BadCovariance)?;
-        self.commit(gated, covariance, rows.carried_out_covariance(), kind, t)
+        let carried_out = rows.carried_out_covariance();
+        self.commit(gated, covariance, carried_out, Vector3::zeros(), kind, t)
     }
 
     /// Fuses rows over the state and the mapped surfaces together, the state's directions
@@ -668,6 +663,7 @@ impl Eskf {
             return Err(UpdateError::NonFinite);
         }
         let mut covariance = self.covariance;
+        let origin = self.map.origin();
         let joint = self
             .map
             .update(&mut covariance, rows, threshold, held)
@@ -679,15 +675,19 @@ impl Eskf {
             correction: joint.correction,
             carried: None,
         };
-        self.commit(gated, covariance, None, kind, t)
+        let origin_moved = self.map.origin() - origin;
+        self.commit(gated, covariance, None, origin_moved, kind, t)
     }
 
-    /// Applies a gated update's correction and covariance (or counts its refusal).
+    /// Applies a gated update's correction and covariance (or counts its refusal);
+    /// `origin_moved` is how far the same update moved the map's origin, which the reported
+    /// position moves with.
     fn commit(
         &mut self,
         gated: Gated,
         covariance: Covariance,
         carried_out: Option<SMatrix<f64, 6, 6>>,
+        origin_moved: Vector3<f64>,
         kind: UpdateKind,
         t: f64,
     ) -> Result<UpdateReport, UpdateError> {
@@ -716,7 +716,7 @@ impl Eskf {
             });
         }
         self.velocity_corrections += next.v - self.state.v;
-        let step = (next.p - self.state.p).norm();
+        let step = (next.p - self.state.p + origin_moved).norm();
         if step > self.config.max_position_step_m {
             self.count_reset(ResetReason::PositionStep { metres: step });
         }
@@ -763,6 +763,7 @@ impl Eskf {
     /// Keeps the last finite state, restarts the covariance from the initial sigmas and drops
     /// the clone; the estimate jumps, so `reset_counter` moves.
     fn reset(&mut self, reason: ResetReason) {
+        self.dissolve_map();
         self.covariance = initial_covariance(
             &self.config,
             &self.state.q,
@@ -770,8 +771,6 @@ impl Eskf {
         );
         self.clone = None;
         self.carried = None;
-        self.map.clear();
-        self.place_handed_over = Matrix3::zeros();
         self.count_reset(reason);
     }
 
@@ -783,7 +782,7 @@ impl Eskf {
     /// the runaway velocity (100 mrad in `open-room` started in motion, twice the start's
     /// sigma). Until the estimate converges again it is not to be trusted.
     fn reinitialise(&mut self, reason: ResetReason) {
-        self.take_place_back();
+        self.dissolve_map();
         let resume = Resume::of(&self.state, &self.covariance);
         let attitude = self
             .recent_force
@@ -829,8 +828,7 @@ impl Eskf {
         self.recent_force.clear();
         self.clone = None;
         self.carried = None;
-        self.take_place_back();
-        self.map.clear();
+        self.dissolve_map();
         self.zero_motion = None;
         self.guard.clear();
         self.converged = false;
@@ -905,11 +903,11 @@ impl Eskf {
             |at: usize| -> Matrix3<f64> { self.covariance.fixed_view::<3, 3>(at, at).into() };
         Estimate {
             t,
-            position: self.state.p,
+            position: self.position(),
             velocity: self.state.v,
             attitude: self.state.q,
             angular_rate: self.angular_rate,
-            position_covariance: block(POS) + self.handed_over_place(),
+            position_covariance: self.position_covariance(),
             velocity_covariance: block(VEL),
             velocity_attitude_covariance: self.covariance.fixed_view::<3, 3>(VEL, ATT).into(),
             attitude_covariance: block(ATT),
@@ -931,9 +929,9 @@ impl Eskf {
         truth: &crate::sensors::TruthSample,
     ) -> Option<super::consistency::Normalised> {
         let covariance: nalgebra::SMatrix<f64, 9, 9> =
-            self.covariance.fixed_view::<9, 9>(POS, POS).into();
+            self.covariance().fixed_view::<9, 9>(POS, POS).into();
         super::consistency::nees(
-            &self.state.p,
+            &self.position(),
             &self.state.v,
             &self.state.q,
             &covariance,
@@ -955,12 +953,18 @@ impl Eskf {
         &self.state
     }
     /// The 33x33 covariance; rows and columns 21.. are the clone's and the carried noise's,
-    /// meaningful only while a clone is open. The position's includes what the plane map took
-    /// over along unfaced directions, as the estimate reports it.
+    /// meaningful only while a clone is open. The position's rows and columns are those of
+    /// the body's place in the navigation frame, as the estimate reports it
+    /// (`Eskf::position`).
     pub fn covariance(&self) -> Covariance {
         let mut covariance = self.covariance;
-        let mut position = covariance.fixed_view_mut::<3, 3>(POS, POS);
-        position += self.handed_over_place();
+        let with_position = self.with_position();
+        covariance
+            .fixed_view_mut::<AUGMENTED, 3>(0, POS)
+            .copy_from(&with_position);
+        covariance
+            .fixed_view_mut::<3, AUGMENTED>(POS, 0)
+            .copy_from(&with_position.transpose());
         covariance
     }
     pub fn time(&self) -> Option<f64> {

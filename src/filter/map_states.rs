@@ -25,6 +25,10 @@ use super::update::{reset_attitude_error, NotPositiveDefinite};
 /// Error states of one surface: two tangent turns of its normal, then its distance.
 pub(crate) const SURFACE_STATES: usize = 3;
 
+/// Error states of the map's origin: where the map's frame lies in the navigation frame
+/// (`MapStates::hand_place_to_map`), ahead of the surfaces' in `X` and `M`.
+const ORIGIN_STATES: usize = 3;
+
 /// One mapped surface's nominal parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Surface {
@@ -97,9 +101,18 @@ pub(crate) struct JointGated {
 }
 
 /// The surfaces, their covariance and their cross-covariance with the filter's state.
+///
+/// The surfaces, the body's position and its clone are in the map's frame, which lies at
+/// `origin` in the navigation frame: the body is at `p + origin` there. The origin's three
+/// error states come first in `X` and `M`; it is zero, and known, until the body's place along
+/// a direction no surface faces is first given to the map.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct MapStates {
     surfaces: Vec<Surface>,
+    origin: Vector3<f64>,
+    /// Whether the body's place was given to the origin since the map was last cleared: its
+    /// states then matter even with no surface left.
+    origin_in_use: bool,
     cross: DMatrix<f64>,
     own: DMatrix<f64>,
     /// Product of the core transitions since `cross` was last brought up to date.
@@ -112,8 +125,10 @@ impl Default for MapStates {
     fn default() -> Self {
         Self {
             surfaces: Vec::new(),
-            cross: DMatrix::zeros(AUGMENTED, 0),
-            own: DMatrix::zeros(0, 0),
+            origin: Vector3::zeros(),
+            origin_in_use: false,
+            cross: DMatrix::zeros(AUGMENTED, ORIGIN_STATES),
+            own: DMatrix::zeros(ORIGIN_STATES, ORIGIN_STATES),
             transition: SMatrix::identity(),
             pending: false,
             next_id: 0,
@@ -122,8 +137,9 @@ impl Default for MapStates {
 }
 
 impl MapStates {
+    /// Whether the map holds nothing the state is correlated with.
     pub(crate) fn is_empty(&self) -> bool {
-        self.surfaces.is_empty()
+        self.surfaces.is_empty() && !self.origin_in_use
     }
 
     pub(crate) fn surfaces(&self) -> &[Surface] {
@@ -134,14 +150,40 @@ impl MapStates {
         self.surfaces.iter().position(|s| s.id == id)
     }
 
-    /// The error states of all surfaces.
+    /// The map's error states: the origin's, then every surface's.
     pub(crate) fn states(&self) -> usize {
-        SURFACE_STATES * self.surfaces.len()
+        ORIGIN_STATES + SURFACE_STATES * self.surfaces.len()
+    }
+
+    /// The first error state of surface `index`.
+    pub(crate) fn column_of(index: usize) -> usize {
+        ORIGIN_STATES + SURFACE_STATES * index
+    }
+
+    /// Where the map's frame lies in the navigation frame (NED, m).
+    pub(crate) fn origin(&self) -> Vector3<f64> {
+        self.origin
+    }
+
+    /// The covariance of the origin's error.
+    pub(crate) fn origin_covariance(&self) -> Matrix3<f64> {
+        self.own.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+
+    /// The cross-covariance between the state's error states and the origin's, with the
+    /// transitions not yet applied to `X` applied here.
+    pub(crate) fn origin_cross(&self) -> SMatrix<f64, AUGMENTED, 3> {
+        let mut cross: SMatrix<f64, AUGMENTED, 3> = SMatrix::from_fn(|r, c| self.cross[(r, c)]);
+        if self.pending {
+            let core = self.transition * cross.fixed_rows::<ERROR_STATES>(0);
+            cross.fixed_rows_mut::<ERROR_STATES>(0).copy_from(&core);
+        }
+        cross
     }
 
     /// One IMU interval of the state's transition, to be applied to `X` when it is next read.
     pub(crate) fn advance(&mut self, dynamics: &ErrorDynamics, dt: f64) {
-        if self.surfaces.is_empty() {
+        if self.is_empty() {
             return;
         }
         dynamics.advance_transition(&mut self.transition, dt);
@@ -167,13 +209,13 @@ impl MapStates {
             !self.pending,
             "settle() before reading the cross-covariance"
         );
-        SMatrix::from_fn(|r, c| self.cross[(r, SURFACE_STATES * index + c)])
+        SMatrix::from_fn(|r, c| self.cross[(r, Self::column_of(index) + c)])
     }
 
     /// The covariance between surfaces `a` and `b`.
     pub(crate) fn own_block(&self, a: usize, b: usize) -> Matrix3<f64> {
         self.own
-            .fixed_view::<3, 3>(SURFACE_STATES * a, SURFACE_STATES * b)
+            .fixed_view::<3, 3>(Self::column_of(a), Self::column_of(b))
             .into_owned()
     }
 
@@ -219,7 +261,7 @@ impl MapStates {
     /// Drops surface `index` (marginalises it out, which a Gaussian allows as it is).
     pub(crate) fn remove(&mut self, index: usize) {
         self.settle();
-        let at = SURFACE_STATES * index;
+        let at = Self::column_of(index);
         self.cross = self.cross.clone().remove_columns(at, SURFACE_STATES);
         self.own = self
             .own
@@ -302,8 +344,9 @@ impl MapStates {
             reset_attitude_error(p, at, &turn);
         }
         self.symmetrise_own();
+        self.origin += dm.fixed_rows::<ORIGIN_STATES>(0);
         for (k, surface) in self.surfaces.iter_mut().enumerate() {
-            surface.inject(&dm.fixed_rows::<3>(SURFACE_STATES * k).into_owned());
+            surface.inject(&dm.fixed_rows::<3>(Self::column_of(k)).into_owned());
         }
         symmetrise(p);
         Ok(JointGated {
@@ -321,13 +364,15 @@ impl MapStates {
                 .surfaces
                 .iter()
                 .all(|s| s.distance.is_finite() && s.normal.iter().all(|x| x.is_finite()))
+            && self.origin.iter().all(|x| x.is_finite())
     }
 
-    /// Moves the origin of the navigation frame along the directions `q` projects on (unit
-    /// directions no fused surface faces) to where the body truly is, in the errors alone: the
-    /// position's error along them goes to the open clone (when `clone_open`) and to every
-    /// surface's distance, and the position's own variance there becomes zero. Returns that
-    /// variance (`q P q`), which the estimate still reports.
+    /// Moves the map's frame along the directions `q` projects on (unit directions no fused
+    /// surface faces) so that the body is where the map believes it, in the errors alone: the
+    /// position's error along them goes to the origin, and out of the open clone (when
+    /// `clone_open`) and every surface's distance, which are in the map's frame. The body's
+    /// place in the navigation frame, `p + origin`, keeps its error and every correlation it
+    /// had: a velocity later measured still corrects it, through the origin.
     ///
     /// A translation of the body, its clone and the whole map together is never observed, so
     /// this tells the filter nothing and takes nothing from it. What it changes is where the
@@ -342,9 +387,7 @@ impl MapStates {
         p: &mut Covariance,
         q: &Matrix3<f64>,
         clone_open: bool,
-    ) -> Matrix3<f64> {
-        self.settle();
-        let place = p.fixed_view::<3, 3>(POS, POS).into_owned();
+    ) {
         let mut to_core = SMatrix::<f64, AUGMENTED, 3>::zeros();
         to_core.fixed_view_mut::<3, 3>(POS, 0).copy_from(&(-q));
         if clone_open {
@@ -353,12 +396,48 @@ impl MapStates {
                 .copy_from(&(-q));
         }
         let mut to_map = DMatrix::<f64>::zeros(self.states(), 3);
+        to_map.fixed_view_mut::<3, 3>(0, 0).copy_from(q);
         for (k, surface) in self.surfaces.iter().enumerate() {
             let row = -(surface.normal.transpose() * q);
             to_map
-                .row_mut(SURFACE_STATES * k + SURFACE_STATES - 1)
+                .row_mut(Self::column_of(k) + SURFACE_STATES - 1)
                 .copy_from(&row);
         }
+        self.origin_in_use = true;
+        self.move_position_error(p, &to_core, &to_map);
+    }
+
+    /// Gives the body its place in the navigation frame back, as the map is dropped: the
+    /// position becomes `p + origin` (returned, to be added to the nominal position) with the
+    /// origin's error, and the map is cleared.
+    pub(crate) fn dissolve(&mut self, p: &mut Covariance) -> Vector3<f64> {
+        let origin = self.origin;
+        if self.origin_in_use {
+            let mut to_core = SMatrix::<f64, AUGMENTED, 3>::zeros();
+            to_core
+                .fixed_view_mut::<3, 3>(POS, 0)
+                .copy_from(&Matrix3::identity());
+            let with_origin = self.origin_cross();
+            let origin_covariance = self.origin_covariance();
+            *p += to_core * with_origin.transpose()
+                + with_origin * to_core.transpose()
+                + to_core * origin_covariance * to_core.transpose();
+            symmetrise(p);
+        }
+        self.clear();
+        origin
+    }
+
+    /// Adds `to_core e_p` to the state's error and `to_map e_p` to the map's, `e_p` the
+    /// position's error: the covariance of `(I + A S) e`, `S` picking the position out.
+    fn move_position_error(
+        &mut self,
+        p: &mut Covariance,
+        to_core: &SMatrix<f64, AUGMENTED, 3>,
+        to_map: &DMatrix<f64>,
+    ) {
+        self.settle();
+        let place = p.fixed_view::<3, 3>(POS, POS).into_owned();
         let with_place = p.fixed_view::<AUGMENTED, 3>(0, POS).into_owned();
         let map_with_place = self.cross.rows(POS, 3).into_owned();
         let to_core_dyn = DMatrix::from_column_slice(AUGMENTED, 3, to_core.as_slice());
@@ -367,15 +446,14 @@ impl MapStates {
         self.cross += &to_core_dyn * &map_with_place
             + &with_place_dyn * to_map.transpose()
             + &to_core_dyn * &place_dyn * to_map.transpose();
-        self.own += &to_map * &map_with_place
+        self.own += to_map * &map_with_place
             + map_with_place.transpose() * to_map.transpose()
-            + &to_map * &place_dyn * to_map.transpose();
+            + to_map * &place_dyn * to_map.transpose();
         *p += to_core * with_place.transpose()
             + with_place * to_core.transpose()
             + to_core * place * to_core.transpose();
         symmetrise(p);
         self.symmetrise_own();
-        q * place * q
     }
 
     /// The surfaces' error-state sigmas, in map order.
@@ -438,7 +516,7 @@ mod tests {
             core[(0, POS + k)] = normal[k];
         }
         let mut surfaces = DMatrix::zeros(1, map.states());
-        surfaces[(0, SURFACE_STATES * index + 2)] = -1.0;
+        surfaces[(0, MapStates::column_of(index) + 2)] = -1.0;
         JointRows {
             innovation: DVector::from_element(1, innovation),
             core,
@@ -536,9 +614,12 @@ mod tests {
         };
         let before = seen(&map, &p);
         let along = Matrix3::from_diagonal(&Vector3::x());
-        let handed = map.hand_place_to_map(&mut p, &along, false);
-        assert!((handed[(0, 0)] - 4.0001).abs() < 1e-12, "{handed}");
+        map.hand_place_to_map(&mut p, &along, false);
         assert!(p[(POS, POS)].abs() < 1e-12 && p[(POS, VEL)].abs() < 1e-12);
+        // The origin took it over, with its correlation with the velocity.
+        let origin = map.origin_covariance()[(0, 0)];
+        assert!((origin - 4.0001).abs() < 1e-12, "{origin}");
+        assert!((map.origin_cross()[(VEL, 0)] - 0.01).abs() < 1e-12);
         // The end wall now carries the body's unsureness along x; the others are untouched.
         assert!(
             (map.sigmas(2).z.powi(2) - 4.0).abs() < 1e-3,
@@ -549,6 +630,42 @@ mod tests {
         for (after, before) in seen(&map, &p).iter().zip(&before) {
             assert!((after - before).abs() < 1e-12, "{after} against {before}");
         }
+    }
+
+    #[test]
+    fn a_velocity_measured_after_the_hand_over_still_corrects_the_place() {
+        use crate::filter::state::VEL;
+        // A walk along x at a velocity known to 0.1 m/s, 10 s on: the place is 1 m unsure,
+        // wholly through the velocity, when it is handed to the map.
+        let mut p = Covariance::identity() * 1e-6;
+        p[(VEL, VEL)] = 0.01;
+        p[(POS, POS)] = 1.0;
+        p[(POS, VEL)] = 0.1;
+        p[(VEL, POS)] = 0.1;
+        let mut map = MapStates::default();
+        map.add(&p, &prior(Vector3::y(), 1.1, 0.01));
+        map.hand_place_to_map(&mut p, &Matrix3::from_diagonal(&Vector3::x()), false);
+        // The velocity is then measured 0.05 m/s too fast: the place was 0.5 m too far on.
+        let mut rows = point_row(&map, 0, 0.0, 0.0);
+        rows.core.fill(0.0);
+        rows.surfaces.fill(0.0);
+        rows.core[(0, VEL)] = 1.0;
+        rows.innovation[0] = -0.05;
+        rows.noise[(0, 0)] = 1e-8;
+        map.update(&mut p, &rows, 1e9, None).unwrap();
+        assert!((map.origin().x + 0.5).abs() < 1e-3, "{}", map.origin());
+        let place =
+            p[(POS, POS)] + 2.0 * map.origin_cross()[(POS, 0)] + map.origin_covariance()[(0, 0)];
+        assert!(place < 1e-3, "{place}");
+        // Dropping the map gives the body its place back, as sure as the velocity made it.
+        let mut dropped = p;
+        assert!((map.dissolve(&mut dropped) - map_origin(-0.5)).norm() < 1e-3);
+        assert!((dropped[(POS, POS)] - place).abs() < 1e-12);
+        assert!(map.is_empty());
+    }
+
+    fn map_origin(x: f64) -> Vector3<f64> {
+        Vector3::new(x, 0.0, 0.0)
     }
 
     #[test]

@@ -433,6 +433,9 @@ impl PlaneMap {
 
     /// Every mapped surface, as epochs.jsonl shows it.
     pub(crate) fn records(&self, filter: &Eskf) -> Vec<SurfaceRecord> {
+        // The surfaces lie in the map's frame; the records, like the trajectory, in the
+        // navigation frame.
+        let origin = filter.map_origin();
         self.surfaces
             .iter()
             .filter_map(|m| {
@@ -440,13 +443,13 @@ impl PlaneMap {
                 let sigmas = filter.surface_sigmas(m.id)?;
                 let from = m.extent.axes * m.extent.low;
                 let to = m.extent.axes * m.extent.high;
-                let offset = surface.normal * surface.distance;
+                let offset = surface.normal * surface.distance + origin;
                 Some(SurfaceRecord {
                     id: m.id,
                     origin: m.origin,
                     standing: m.standing,
                     normal: surface.normal.into(),
-                    distance: surface.distance,
+                    distance: surface.distance + surface.normal.dot(&origin),
                     sigma_normal_rad: sigmas.x.max(sigmas.y),
                     sigma_distance_m: sigmas.z,
                     lines_fused: m.lines_fused,

@@ -7,7 +7,7 @@ use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Matrix3x2, SMatrix, Vector2, 
 use super::{Eskf, UpdateError, UpdateKind, UpdateReport};
 use crate::filter::consistency::chi_square_quantile;
 use crate::filter::history::Pose;
-use crate::filter::map_states::{JointRows, Surface, SurfacePrior, SURFACE_STATES};
+use crate::filter::map_states::{JointRows, MapStates, Surface, SurfacePrior, SURFACE_STATES};
 use crate::filter::state::{ATT, AUGMENTED, POS, VEL};
 use crate::least_squares::{facing, PARALLEL_TOLERANCE};
 
@@ -215,29 +215,45 @@ pub(crate) struct Epoch {
 }
 
 impl Eskf {
-    /// Covariance of the position, NED, m^2, with what the map took over along unfaced
-    /// directions.
+    /// The body's place in the navigation frame (NED, m): in the map's frame, which lies at
+    /// the map's origin (`MapStates::hand_place_to_map`).
+    pub(crate) fn position(&self) -> Vector3<f64> {
+        self.state.p + self.map_origin()
+    }
+
+    /// Where the map's frame lies in the navigation frame (NED, m).
+    pub(crate) fn map_origin(&self) -> Vector3<f64> {
+        self.map.origin()
+    }
+
+    /// Covariance of `position`'s error with the state's: the position's columns with the
+    /// origin's added. Row `POS` of it, at column `POS`, is the position's own covariance.
+    pub(crate) fn with_position(&self) -> SMatrix<f64, AUGMENTED, 3> {
+        let own: SMatrix<f64, AUGMENTED, 3> =
+            self.covariance.fixed_view::<AUGMENTED, 3>(0, POS).into();
+        if self.map.is_empty() {
+            return own;
+        }
+        let with_origin = self.map.origin_cross();
+        let mut with = own + with_origin;
+        let origin_on_position = with_origin.fixed_rows::<3>(POS).transpose();
+        let mut block = with.fixed_rows_mut::<3>(POS);
+        block += origin_on_position + self.map.origin_covariance();
+        with
+    }
+
+    /// Covariance of the position, NED, m^2.
     pub(crate) fn position_covariance(&self) -> Matrix3<f64> {
-        self.covariance.fixed_view::<3, 3>(POS, POS).into_owned() + self.handed_over_place()
+        self.with_position().fixed_rows::<3>(POS).into_owned()
     }
 
-    /// The variance of the position's error the map took over. Each epoch hands over what
-    /// the velocity's error added since the last, and those parts are nearly the same error
-    /// (a velocity wrong for a minute is wrong by about as much in each epoch): their
-    /// standard deviations add, not their variances. Added as variances, the reported sigma
-    /// along a 250 s corridor at 10 Hz grew as the root of the epochs, not with them, and fell
-    /// short of the error.
-    pub(super) fn handed_over_place(&self) -> Matrix3<f64> {
-        self.place_handed_over * self.place_handed_over
-    }
-
-    /// Gives the position back the variance the map took over, as the map is dropped: without
+    /// Gives the body its place in the navigation frame back as the map is dropped: without
     /// surfaces there is nothing to hold the body's place for.
-    pub(super) fn take_place_back(&mut self) {
-        let handed = self.handed_over_place();
-        let mut position = self.covariance.fixed_view_mut::<3, 3>(POS, POS);
-        position += handed;
-        self.place_handed_over = Matrix3::zeros();
+    pub(super) fn dissolve_map(&mut self) {
+        let origin = self.map.dissolve(&mut self.covariance);
+        if origin.iter().all(|x| x.is_finite()) {
+            self.state.p += origin;
+        }
     }
 
     /// The mapped surfaces.
@@ -386,10 +402,8 @@ impl Eskf {
         let unmapped = self.unfaced_by_the_map(unfaced);
         if let (Some(q), Ok(_)) = (Self::held_along(&unmapped), self.aligned_time()) {
             let clone_open = self.clone.is_some();
-            let handed = self
-                .map
+            self.map
                 .hand_place_to_map(&mut self.covariance, &q, clone_open);
-            self.place_handed_over += symmetric_root(&handed);
         }
         let report = self.fuse_lines(lines, t_ref, allowance, held.as_ref())?;
         self.after_odometry_update(&report, [t_ref, t_ref], report.t);
@@ -455,7 +469,7 @@ impl Eskf {
             }
             joint
                 .surfaces
-                .view_mut((2 * r, SURFACE_STATES * index), (2, SURFACE_STATES))
+                .view_mut((2 * r, MapStates::column_of(*index)), (2, SURFACE_STATES))
                 .copy_from(&line.surface);
         }
         let threshold = self.map_gate(k);
@@ -529,13 +543,6 @@ impl Eskf {
         }
         c
     }
-}
-
-/// The symmetric square root of a covariance (its negative eigenvalues, rounding's, as zero).
-fn symmetric_root(covariance: &Matrix3<f64>) -> Matrix3<f64> {
-    let eigen = covariance.symmetric_eigen();
-    let roots = eigen.eigenvalues.map(|v| v.max(0.0).sqrt());
-    eigen.eigenvectors * Matrix3::from_diagonal(&roots) * eigen.eigenvectors.transpose()
 }
 
 /// The lines' innovations and their block-diagonal noise, two rows a line in order.
