@@ -14,6 +14,7 @@ use ladar_lab::monte_carlo::{run_monte_carlo, MonteCarloReport, MonteCarloSettin
 use ladar_odometer::estimate::IntegrityStatus;
 use ladar_odometer::filter::RelativePoseUpdate;
 use ladar_odometer::fusion::FusionSettings;
+use ladar_odometer::odometry::OdometryMethod;
 use ladar_sim::{Scenario, Trajectory};
 
 fn scenario(name: &str, duration_s: Option<f64>, skip: Option<u32>) -> Scenario {
@@ -46,8 +47,11 @@ fn holding(mut scenario: Scenario, names: &[&str]) -> Scenario {
 }
 
 /// The defaults, but for the stationary start (40 s on the hover, 10 s on the flight).
+/// The paper's odometer (these studies are of its relative poses), after a stationary start
+/// of `stationary_start_s`.
 fn settings(stationary_start_s: f64) -> FusionSettings {
     let mut settings = FusionSettings::default();
+    settings.odometry.method = OdometryMethod::Pairs;
     settings.filter.stationary_start_s = stationary_start_s;
     settings
 }
@@ -535,6 +539,30 @@ fn monte_carlo_nees_hover_10hz_open_doorway() {
 /// after a 5 s stationary start, each with its own IMU unit drawn from the filter's prior.
 #[test]
 fn short_monte_carlo_keeps_velocity_consistent_and_is_never_optimistic() {
+    let report = short_monte_carlo(&settings(5.0));
+    assert_consistent(&report, NeesPart::Velocity, 0.75);
+    assert_consistent(&report, NeesPart::Observable, 0.75);
+    for part in NeesPart::ALL {
+        assert_not_optimistic(&report, part, 0.1);
+    }
+}
+
+/// The same on the plane map: never optimistic. It is conservative by the allowance it makes
+/// for real surfaces (roughness and waviness), which the simulator's planes do not have
+/// (docs/accuracy.md, "The plane map"), so its NEES lies below the interval.
+#[test]
+fn on_the_plane_map_the_short_monte_carlo_is_never_optimistic() {
+    let mut settings = settings(5.0);
+    settings.odometry.method = OdometryMethod::Map;
+    let report = short_monte_carlo(&settings);
+    for part in NeesPart::ALL {
+        assert_not_optimistic(&report, part, 0.1);
+    }
+}
+
+/// Three seeds of a short hover whose motion starts right after a 5 s stationary start, each
+/// with its own IMU unit drawn from the filter's prior.
+fn short_monte_carlo(settings: &FusionSettings) -> MonteCarloReport {
     let mut scenario = scenario("hallway-hover", Some(17.0), None);
     if let Trajectory::Hover { oscillation, .. } = &mut scenario.trajectory {
         oscillation.start_s = 5.0;
@@ -545,12 +573,31 @@ fn short_monte_carlo_keeps_velocity_consistent_and_is_never_optimistic() {
         first_seed: 1,
         unit_errors: UnitErrors::DrawnFromFilterPrior,
     };
-    let report = run_monte_carlo(&scenario, &settings(5.0), &study).unwrap();
+    let report = run_monte_carlo(&scenario, settings, &study).unwrap();
     println!("{}", serde_json::to_string(&report).unwrap());
     assert_eq!(report.times, 13);
-    assert_consistent(&report, NeesPart::Velocity, 0.75);
-    assert_consistent(&report, NeesPart::Observable, 0.75);
-    for part in NeesPart::ALL {
-        assert_not_optimistic(&report, part, 0.1);
-    }
+    report
+}
+
+/// The flight on the plane map: after the turn at the hallway's end the level scanner looks
+/// back at the cabinet's far face, parallel to the near face the map holds and 0.6 m behind
+/// it. With the position 0.24 m unsure along the hallway the far face fitted the near face's
+/// surface, and the body was set 0.6 m off at a sigma of 6 mm for the rest of the flight
+/// (position NEES 822 over three axes). A face is seen from its own side only
+/// (`plane_map::seen_from_its_side`).
+#[test]
+fn on_the_plane_map_a_face_seen_from_behind_never_moves_the_body() {
+    let mut settings = settings(10.0);
+    settings.odometry.method = OdometryMethod::Map;
+    let report = run(
+        "hallway-flight 1 Hz, map",
+        &scenario("hallway-flight", None, None),
+        &settings,
+    );
+    let position_nees = report.nees_block_means[0];
+    assert!(
+        position_nees < 9.0,
+        "position NEES {position_nees} over 3 axes"
+    );
+    assert!(report.horizontal_error_end_m < 1.0, "{report:?}");
 }

@@ -46,10 +46,11 @@ fn scenario(name: &str, rig: Rig, epoch_rate_hz: f64) -> Scenario {
     scenario
 }
 
-/// The fusion as the daemon replays a simulated recording (`simulate` writes the still start
-/// into the rig's configuration).
+/// The paper's odometer as the daemon replays a simulated recording (`simulate` writes the
+/// still start into the rig's configuration); `map_settings` for the plane map.
 fn settings(epoch_rate_hz: f64) -> FusionSettings {
     let mut settings = FusionSettings::default();
+    settings.odometry.method = OdometryMethod::Pairs;
     settings.filter.stationary_start_s = STILL_S;
     settings.fusion.epoch_rate_hz = epoch_rate_hz;
     settings

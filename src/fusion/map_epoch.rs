@@ -34,6 +34,9 @@ pub struct MapEpoch {
     /// Surfaces not fused because each alone faced a direction and its standing did not let
     /// it (a wall from one line not yet corroborated).
     pub unchecked: Vec<u64>,
+    /// Surfaces dropped because a line fitted them from behind: they moved past the body, or
+    /// the line lay on the far face of what they are a face of.
+    pub seen_from_behind: Vec<u64>,
     pub forgotten: Vec<u64>,
     pub integrity: Option<MapIntegrity>,
     /// The map after the epoch.
@@ -234,6 +237,7 @@ impl Fusion {
             placed,
             excluded,
             unchecked,
+            seen_from_behind: self.plane_map.seen_from_behind().to_vec(),
             forgotten: self.plane_map.forget(&mut self.filter, &position, t_ref),
             integrity,
             surfaces: self.plane_map.records(&self.filter),
