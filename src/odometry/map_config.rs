@@ -12,9 +12,9 @@ use crate::filter::SurfaceAllowance;
 pub enum OdometryMethod {
     /// The paper's: planes of two lines seen at once, matched with the previous epoch's, the
     /// relative pose solved and fused against a clone of the previous pose.
-    #[default]
     Pairs,
     /// Every line on a local map of surfaces carried with the filter's state.
+    #[default]
     Map,
 }
 

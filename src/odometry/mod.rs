@@ -123,7 +123,7 @@ pub struct OdometryConfig {
 impl Default for OdometryConfig {
     fn default() -> Self {
         Self {
-            method: OdometryMethod::Pairs,
+            method: OdometryMethod::Map,
             map: MapConfig::default(),
             range_sigma_m: 0.01,
             breakpoint_lambda_deg: 10.0,
