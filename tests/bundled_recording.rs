@@ -64,6 +64,8 @@ fn bundled_recording_replays_within_the_hover_accuracy() {
         assert!(truth.velocity_std_ned[axis] < 0.015, "{summary}");
         assert!(truth.attitude_std_mrad[axis] < 4.0, "{summary}");
         assert!(truth.attitude_rms_mrad[axis] < 10.0, "{summary}");
+        // A hover among walls: centimetres, where a velocity 0.015 m/s off would give 0.8 m.
+        assert!(truth.position_drift_rms_m[axis] < 0.05, "{summary}");
     }
 }
 

@@ -162,6 +162,15 @@ impl fmt::Display for ReplaySummary {
                     triple(t.attitude_std_mrad, 2),
                     triple(t.attitude_rms_mrad, 2)
                 )?;
+                let [north, east, _] = t.position_drift_end_m;
+                writeln!(
+                    f,
+                    "    position drift      RMS {} m, at the end {} m ({:.2} m horizontally after {:.1} m travelled)",
+                    triple(t.position_drift_rms_m, 3),
+                    triple(t.position_drift_end_m, 3),
+                    north.hypot(east),
+                    t.distance_travelled_m
+                )?;
             }
             None => writeln!(f, "  no truth to compare with")?,
         }

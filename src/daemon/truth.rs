@@ -1,6 +1,7 @@
 //! The replay's comparison of estimates with a simulated recording's `/truth`, in the figures
 //! the lab's `evaluate` reports on the same scenario: per-axis NED velocity and roll/pitch/yaw
-//! errors, after the filter's stationary start (alignment is not accuracy).
+//! errors, after the filter's stationary start (alignment is not accuracy), and how far the
+//! position drifted from the truth's since then (what `trajectory.tum` shows).
 
 use super::mavlink_out::QualityPolicy;
 use crate::estimate::Estimate;
@@ -18,6 +19,12 @@ pub struct TruthErrors {
     /// Roll, pitch and yaw (Euler angle) errors, mrad.
     pub attitude_std_mrad: [f64; 3],
     pub attitude_rms_mrad: [f64; 3],
+    /// The position's travel since the first estimate compared, less the truth's (NED, m):
+    /// its RMS over the estimates and its value at the last.
+    pub position_drift_rms_m: [f64; 3],
+    pub position_drift_end_m: [f64; 3],
+    /// How far the truth travelled meanwhile, m.
+    pub distance_travelled_m: f64,
 }
 
 /// Errors of the `estimates` from `from_s` on, each against the truth sample nearest in time.
@@ -27,14 +34,19 @@ pub(crate) fn truth_errors(
     from_s: f64,
 ) -> Option<TruthErrors> {
     let mut errors = ErrorSeries::default();
+    let mut drift = Drift::default();
     for estimate in estimates.iter().filter(|e| e.t >= from_s) {
         let nearest = nearest(truth, estimate.t)?;
         errors.push(&estimate.velocity, &estimate.attitude, nearest);
+        drift.push(&estimate.position, &nearest.p);
     }
     if errors.is_empty() {
         return None;
     }
     Some(TruthErrors {
+        position_drift_rms_m: rms(&drift.errors),
+        position_drift_end_m: drift.errors.last().copied().unwrap_or_default().into(),
+        distance_travelled_m: drift.travelled_m,
         samples: errors.len(),
         from_s,
         velocity_std_ned: errors.velocity_std(),
@@ -42,6 +54,26 @@ pub(crate) fn truth_errors(
         attitude_std_mrad: errors.attitude_std_mrad(),
         attitude_rms_mrad: errors.attitude_rms_mrad(),
     })
+}
+
+/// The estimate's travel since the first sample against the truth's.
+#[derive(Debug, Default)]
+struct Drift {
+    first: Option<(Vector3<f64>, Vector3<f64>)>,
+    last_truth: Option<Vector3<f64>>,
+    travelled_m: f64,
+    errors: Vec<Vector3<f64>>,
+}
+
+impl Drift {
+    fn push(&mut self, estimate: &Vector3<f64>, truth: &Vector3<f64>) {
+        let (estimate_0, truth_0) = *self.first.get_or_insert((*estimate, *truth));
+        self.errors
+            .push((estimate - estimate_0) - (truth - truth_0));
+        if let Some(last) = self.last_truth.replace(*truth) {
+            self.travelled_m += (truth - last).norm();
+        }
+    }
 }
 
 /// What the autopilot was told, judged against `/truth`: the body-frame velocity and its
@@ -267,6 +299,29 @@ mod tests {
         assert!((errors.velocity_rms_ned[0] - ((0.01 + 0.09) / 2.0f64).sqrt()).abs() < 1e-9);
         assert!((errors.attitude_rms_mrad[0] - ((1.0 + 9.0) / 2.0f64).sqrt()).abs() < 1e-6);
         assert!(truth_errors(&estimates, &truth, 10.0).is_none());
+        assert!(truth_errors(&estimates, &[], 0.0).is_none());
+    }
+
+    #[test]
+    fn drift_is_the_travel_since_the_first_sample_less_the_truths() {
+        // The truth walks 1 m/s along x; the estimate starts 5 m off (an origin is not
+        // drift) and walks 1.1 m/s.
+        let walking = |t: f64| TruthSample {
+            p: Vector3::new(t, 0.0, 0.0),
+            ..truth(t)
+        };
+        let truth: Vec<_> = (0..=100).map(|k| walking(k as f64 * 0.1)).collect();
+        let estimates: Vec<_> = [2.0, 4.0, 6.0]
+            .map(|t| Estimate {
+                position: Vector3::new(5.0 + 1.1 * t, 0.0, 0.0),
+                ..estimate(t, 1.1, 0.0)
+            })
+            .to_vec();
+        let errors = truth_errors(&estimates, &truth, 1.0).unwrap();
+        assert!((errors.position_drift_end_m[0] - 0.4).abs() < 1e-9);
+        let rms = ((0.0 + 0.04 + 0.16) / 3.0f64).sqrt();
+        assert!((errors.position_drift_rms_m[0] - rms).abs() < 1e-9);
+        assert!((errors.distance_travelled_m - 4.0).abs() < 1e-9);
         assert!(truth_errors(&estimates, &[], 0.0).is_none());
     }
 }
