@@ -13,7 +13,7 @@ use super::covariance::{ErrorDynamics, ProcessNoise};
 use super::divergence::{Divergence, DivergenceGuard};
 use super::history::{Pose, PoseHistory};
 use super::imu_noise::ImuNoiseMeter;
-use super::map_states::{JointRows, MapStates};
+use super::map_states::{put_place, JointRows, MapStates};
 use super::relative_pose::CarriedNoise;
 use super::state::{
     Covariance, NominalState, ACCEL_BIAS, ACCEL_SCALE, ATT, AUGMENTED, CARRIED, CLONE_ATT,
@@ -958,13 +958,7 @@ impl Eskf {
     /// (`Eskf::position`).
     pub fn covariance(&self) -> Covariance {
         let mut covariance = self.covariance;
-        let with_position = self.with_position();
-        covariance
-            .fixed_view_mut::<AUGMENTED, 3>(0, POS)
-            .copy_from(&with_position);
-        covariance
-            .fixed_view_mut::<3, AUGMENTED>(POS, 0)
-            .copy_from(&with_position.transpose());
+        put_place(&mut covariance, &self.with_position());
         covariance
     }
     pub fn time(&self) -> Option<f64> {

@@ -412,20 +412,26 @@ impl MapStates {
     /// origin's error, and the map is cleared.
     pub(crate) fn dissolve(&mut self, p: &mut Covariance) -> Vector3<f64> {
         let origin = self.origin;
-        if self.origin_in_use {
-            let mut to_core = SMatrix::<f64, AUGMENTED, 3>::zeros();
-            to_core
-                .fixed_view_mut::<3, 3>(POS, 0)
-                .copy_from(&Matrix3::identity());
-            let with_origin = self.origin_cross();
-            let origin_covariance = self.origin_covariance();
-            *p += to_core * with_origin.transpose()
-                + with_origin * to_core.transpose()
-                + to_core * origin_covariance * to_core.transpose();
-            symmetrise(p);
-        }
+        let with_place = self.with_place(p);
+        put_place(p, &with_place);
         self.clear();
         origin
+    }
+
+    /// The covariance of the state's errors (`p`) with the body's place in the navigation
+    /// frame, `e_p + e_origin`: the position's columns with the origin's added; at the
+    /// position's rows, the place's own covariance.
+    pub(crate) fn with_place(&self, p: &Covariance) -> SMatrix<f64, AUGMENTED, 3> {
+        let own: SMatrix<f64, AUGMENTED, 3> = p.fixed_view::<AUGMENTED, 3>(0, POS).into();
+        if !self.origin_in_use {
+            return own;
+        }
+        let with_origin = self.origin_cross();
+        let mut with = own + with_origin;
+        let origin_on_position = with_origin.fixed_rows::<3>(POS).transpose();
+        let mut block = with.fixed_rows_mut::<3>(POS);
+        block += origin_on_position + self.origin_covariance();
+        with
     }
 
     /// Adds `to_core e_p` to the state's error and `to_map e_p` to the map's, `e_p` the
@@ -473,6 +479,14 @@ impl MapStates {
             }
         }
     }
+}
+
+/// Writes `with_place` (`MapStates::with_place`) into the position's rows and columns of `p`.
+pub(crate) fn put_place(p: &mut Covariance, with_place: &SMatrix<f64, AUGMENTED, 3>) {
+    p.fixed_view_mut::<AUGMENTED, 3>(0, POS)
+        .copy_from(with_place);
+    p.fixed_view_mut::<3, AUGMENTED>(POS, 0)
+        .copy_from(&with_place.transpose());
 }
 
 /// The columns of `rows` with an entry other than zero.

@@ -226,20 +226,9 @@ impl Eskf {
         self.map.origin()
     }
 
-    /// Covariance of `position`'s error with the state's: the position's columns with the
-    /// origin's added. Row `POS` of it, at column `POS`, is the position's own covariance.
+    /// Covariance of `position`'s error with the state's (`MapStates::with_place`).
     pub(crate) fn with_position(&self) -> SMatrix<f64, AUGMENTED, 3> {
-        let own: SMatrix<f64, AUGMENTED, 3> =
-            self.covariance.fixed_view::<AUGMENTED, 3>(0, POS).into();
-        if self.map.is_empty() {
-            return own;
-        }
-        let with_origin = self.map.origin_cross();
-        let mut with = own + with_origin;
-        let origin_on_position = with_origin.fixed_rows::<3>(POS).transpose();
-        let mut block = with.fixed_rows_mut::<3>(POS);
-        block += origin_on_position + self.map.origin_covariance();
-        with
+        self.map.with_place(&self.covariance)
     }
 
     /// Covariance of the position, NED, m^2.
