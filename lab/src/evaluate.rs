@@ -282,8 +282,6 @@ pub fn run_scenario_recorded(
 struct Errors {
     series: ErrorSeries,
     last_position: Option<(f64, Vector3<f64>)>,
-    distance: f64,
-    last_truth: Option<Vector3<f64>>,
     nees: Vec<NeesSample>,
 }
 
@@ -295,12 +293,8 @@ impl Errors {
         position: &Vector3<f64>,
         truth: &TruthSample,
     ) {
-        self.series.push(velocity, attitude, truth);
+        self.series.push(velocity, attitude, position, truth);
         self.last_position = Some((truth.t, position - truth.p));
-        if let Some(last) = self.last_truth {
-            self.distance += (truth.p - last).norm();
-        }
-        self.last_truth = Some(truth.p);
     }
 
     fn report(
@@ -326,8 +320,8 @@ impl Errors {
             attitude_error_rms_mrad: self.series.attitude_rms_mrad(),
             horizontal_error_end_m: horizontal,
             position_error_end_m: end.into(),
-            distance_travelled_m: self.distance,
-            drift_percent: 100.0 * horizontal / self.distance,
+            distance_travelled_m: self.series.travelled_m(),
+            drift_percent: 100.0 * horizontal / self.series.travelled_m(),
             nees_mean: part_mean(NeesPart::Full),
             nees_interval: interval(NeesPart::Full),
             nees_samples: self.nees.len(),

@@ -34,19 +34,22 @@ pub(crate) fn truth_errors(
     from_s: f64,
 ) -> Option<TruthErrors> {
     let mut errors = ErrorSeries::default();
-    let mut drift = Drift::default();
     for estimate in estimates.iter().filter(|e| e.t >= from_s) {
         let nearest = nearest(truth, estimate.t)?;
-        errors.push(&estimate.velocity, &estimate.attitude, nearest);
-        drift.push(&estimate.position, &nearest.p);
+        errors.push(
+            &estimate.velocity,
+            &estimate.attitude,
+            &estimate.position,
+            nearest,
+        );
     }
     if errors.is_empty() {
         return None;
     }
     Some(TruthErrors {
-        position_drift_rms_m: rms(&drift.errors),
-        position_drift_end_m: drift.errors.last().copied().unwrap_or_default().into(),
-        distance_travelled_m: drift.travelled_m,
+        position_drift_rms_m: errors.drift_rms(),
+        position_drift_end_m: errors.drift_end(),
+        distance_travelled_m: errors.travelled_m(),
         samples: errors.len(),
         from_s,
         velocity_std_ned: errors.velocity_std(),
@@ -54,26 +57,6 @@ pub(crate) fn truth_errors(
         attitude_std_mrad: errors.attitude_std_mrad(),
         attitude_rms_mrad: errors.attitude_rms_mrad(),
     })
-}
-
-/// The estimate's travel since the first sample against the truth's.
-#[derive(Debug, Default)]
-struct Drift {
-    first: Option<(Vector3<f64>, Vector3<f64>)>,
-    last_truth: Option<Vector3<f64>>,
-    travelled_m: f64,
-    errors: Vec<Vector3<f64>>,
-}
-
-impl Drift {
-    fn push(&mut self, estimate: &Vector3<f64>, truth: &Vector3<f64>) {
-        let (estimate_0, truth_0) = *self.first.get_or_insert((*estimate, *truth));
-        self.errors
-            .push((estimate - estimate_0) - (truth - truth_0));
-        if let Some(last) = self.last_truth.replace(*truth) {
-            self.travelled_m += (truth - last).norm();
-        }
-    }
 }
 
 /// What the autopilot was told, judged against `/truth`: the body-frame velocity and its
@@ -149,12 +132,19 @@ pub(crate) fn nearest_in_time<T>(items: &[T], t: f64, time: impl Fn(&T) -> f64) 
         .min_by(|a, b| (time(a) - t).abs().total_cmp(&(time(b) - t).abs()))
 }
 
-/// Velocity (NED, m/s) and roll/pitch/yaw (Euler angle, mrad) errors against truth, per axis:
-/// the figures both the replay summary and the lab's scenario evaluation report.
+/// Velocity (NED, m/s) and roll/pitch/yaw (Euler angle, mrad) errors against truth, per axis,
+/// the position's drift (its travel since the first sample less the truth's, m) and the
+/// distance the truth travelled: the figures both the replay summary and the lab's scenario
+/// evaluation report.
 #[derive(Debug, Default, Clone)]
 pub struct ErrorSeries {
     velocity: Vec<Vector3<f64>>,
     attitude: Vec<Vector3<f64>>,
+    drift: Vec<Vector3<f64>>,
+    /// The estimate's and the truth's positions at the first sample.
+    first_positions: Option<(Vector3<f64>, Vector3<f64>)>,
+    last_truth_position: Option<Vector3<f64>>,
+    travelled_m: f64,
 }
 
 impl ErrorSeries {
@@ -162,6 +152,7 @@ impl ErrorSeries {
         &mut self,
         velocity: &Vector3<f64>,
         attitude: &UnitQuaternion<f64>,
+        position: &Vector3<f64>,
         truth: &TruthSample,
     ) {
         self.velocity.push(velocity - truth.v);
@@ -169,6 +160,25 @@ impl ErrorSeries {
         let (tr, tp, ty) = truth.q.euler_angles();
         self.attitude
             .push(Vector3::new(wrap(r - tr), wrap(p - tp), wrap(y - ty)) * 1e3);
+        let (position_0, truth_0) = *self.first_positions.get_or_insert((*position, truth.p));
+        self.drift
+            .push((position - position_0) - (truth.p - truth_0));
+        if let Some(last) = self.last_truth_position.replace(truth.p) {
+            self.travelled_m += (truth.p - last).norm();
+        }
+    }
+
+    pub fn drift_rms(&self) -> [f64; 3] {
+        rms(&self.drift)
+    }
+
+    pub fn drift_end(&self) -> [f64; 3] {
+        self.drift.last().copied().unwrap_or_default().into()
+    }
+
+    /// How far the truth travelled from the first sample to the last, m.
+    pub fn travelled_m(&self) -> f64 {
+        self.travelled_m
     }
 
     pub(crate) fn len(&self) -> usize {

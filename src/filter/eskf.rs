@@ -663,7 +663,6 @@ impl Eskf {
             return Err(UpdateError::NonFinite);
         }
         let mut covariance = self.covariance;
-        let origin = self.map.origin();
         let joint = self
             .map
             .update(&mut covariance, rows, threshold, held)
@@ -675,8 +674,7 @@ impl Eskf {
             correction: joint.correction,
             carried: None,
         };
-        let origin_moved = self.map.origin() - origin;
-        self.commit(gated, covariance, None, origin_moved, kind, t)
+        self.commit(gated, covariance, None, joint.origin_moved, kind, t)
     }
 
     /// Applies a gated update's correction and covariance (or counts its refusal);

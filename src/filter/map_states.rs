@@ -98,6 +98,9 @@ impl JointRows {
 pub(crate) struct JointGated {
     pub nis: f64,
     pub correction: Option<ErrorState>,
+    /// How far the update moved the map's origin (NED, m), which the body's reported place
+    /// moves with.
+    pub origin_moved: Vector3<f64>,
 }
 
 /// The surfaces, their covariance and their cross-covariance with the filter's state.
@@ -317,6 +320,7 @@ impl MapStates {
             return Ok(JointGated {
                 nis,
                 correction: None,
+                origin_moved: Vector3::zeros(),
             });
         }
         // With S^-1 formed once, the gains are products, not a triangular solve per column.
@@ -344,7 +348,8 @@ impl MapStates {
             reset_attitude_error(p, at, &turn);
         }
         self.symmetrise_own();
-        self.origin += dm.fixed_rows::<ORIGIN_STATES>(0);
+        let origin_moved = dm.fixed_rows::<ORIGIN_STATES>(0).into_owned();
+        self.origin += origin_moved;
         for (k, surface) in self.surfaces.iter_mut().enumerate() {
             surface.inject(&dm.fixed_rows::<3>(Self::column_of(k)).into_owned());
         }
@@ -352,6 +357,7 @@ impl MapStates {
         Ok(JointGated {
             nis,
             correction: Some(correction),
+            origin_moved,
         })
     }
 

@@ -239,7 +239,7 @@ impl PlaneMap {
                 let ends = ends_in_navigation(line, pose);
                 let along = pose.q.transform_vector(&line.direction);
                 let toward = pose.q.transform_vector(&line.centroid);
-                let mut fits: Vec<(f64, u64)> = self
+                let (mut fits, from_behind): (Vec<Fit>, Vec<Fit>) = self
                     .surfaces
                     .iter()
                     .filter(|m| m.extent.normal().dot(&along).abs() <= MAX_TILT_OUT_OF_PLANE)
@@ -249,14 +249,8 @@ impl PlaneMap {
                         let chi2 = s.cholesky()?.solve(&y).dot(&y);
                         (chi2 <= self.config.association_gate_chi2).then_some((chi2, m.id))
                     })
-                    .collect();
-                fits.retain(|&(_, id)| {
-                    let facing = seen_from_its_side(filter.surfaces(), id, &toward);
-                    if !facing {
-                        behind.push(id);
-                    }
-                    facing
-                });
+                    .partition(|&(_, id)| seen_from_its_side(filter.surfaces(), id, &toward));
+                behind.extend(from_behind.into_iter().map(|(_, id)| id));
                 fits.sort_by(|a, b| a.0.total_cmp(&b.0));
                 match fits.as_slice() {
                     [] => Association::Free,
@@ -483,6 +477,9 @@ impl PlaneMap {
             .collect()
     }
 }
+
+/// A surface a line fits within the association gate: the chi-square, and the surface's id.
+type Fit = (f64, u64);
 
 /// Whether a line seen `toward` (from the body to the line, navigation axes) can lie on
 /// surface `id`: a surface is placed with its normal pointing away from the body, and a face
